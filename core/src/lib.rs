@@ -1,0 +1,26 @@
+//! # stride-core
+//!
+//! The conventions every other stride crate shares:
+//!
+//! * [`pose`]: rigid transforms named `b_from_a` (they map points expressed in frame `a` into
+//!   frame `b`), e.g. `world_from_camera`; metres and radians throughout.
+//! * [`trajectory`]: time-stamped poses (seconds), sorted by time, with interpolation.
+//! * [`geometry`]: Umeyama's closed-form alignment of two point sets (SE(3) or Sim(3)).
+//! * [`camera`]: the pinhole camera with Brown-Conrady distortion; the camera frame is
+//!   x right, y down, z forward (OpenCV/TUM).
+//! * [`image`] and [`frame`]: plain image buffers and the RGB-D frame (depth in metres).
+//! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
+//! * [`fsutil`]: writing files atomically (temporary file, then rename).
+//!
+//! This crate depends on nalgebra only, so that mapping and evaluation can serve any SLAM.
+
+pub mod camera;
+pub mod frame;
+pub mod fsutil;
+pub mod geometry;
+pub mod image;
+pub mod pose;
+pub mod time;
+pub mod trajectory;
+
+pub use nalgebra;

@@ -1,0 +1,228 @@
+//! Camera presets and camera files.
+//!
+//! A camera file is JSON, TOML or YAML (chosen by extension: `.json`, `.toml`, `.yaml` or
+//! `.yml`) with the keys `fx, fy, cx, cy` (pixels), `width, height` (pixels), `depth_scale`
+//! (raw depth units per metre: 5000 for TUM's 16-bit PNGs) and optionally
+//! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0). Unknown keys
+//! are ignored, so a file can carry notes or extra calibration.
+
+use crate::error::DatasetError;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use stride_core::camera::{BrownConrady, PinholeCamera};
+
+/// A depth camera registered to a colour camera: intrinsics plus the depth PNG scale.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraConfig {
+    /// Intrinsics, image size and distortion of the colour camera (depth is registered).
+    pub camera: PinholeCamera,
+    /// Raw depth units per metre in the depth PNGs (TUM: 5000, i.e. 0.2 mm per unit).
+    pub depth_scale: f64,
+}
+
+/// TUM's depth scale: 16-bit depth PNGs hold 5000 units per metre.
+pub const TUM_DEPTH_SCALE: f64 = 5000.0;
+
+/// The serialised form of a camera file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct CameraFile {
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    width: u32,
+    height: u32,
+    depth_scale: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    distortion: Option<Vec<f64>>,
+}
+
+/// Names accepted by [`CameraConfig::preset`].
+pub const PRESET_NAMES: [&str; 3] = ["fr1", "fr2", "fr3"];
+
+impl CameraConfig {
+    /// The TUM RGB-D benchmark's calibrated cameras (Freiburg 1, 2 and 3; 640x480, depth
+    /// scale 5000). fr1 and fr2 carry the published distortion; fr3 images are already
+    /// undistorted. `None` for an unknown name.
+    pub fn preset(name: &str) -> Option<Self> {
+        let (intr, dist) = match name {
+            "fr1" => (
+                (517.306408, 516.469215, 318.643040, 255.313989),
+                Some([0.262383, -0.953104, -0.005358, 0.002628, 1.163314]),
+            ),
+            "fr2" => (
+                (520.908620, 521.007327, 325.141442, 249.701764),
+                Some([0.231222, -0.784899, -0.003257, -0.000105, 0.917205]),
+            ),
+            "fr3" => ((535.4, 539.2, 320.1, 247.6), None),
+            _ => return None,
+        };
+        let camera = PinholeCamera::new(intr.0, intr.1, intr.2, intr.3, 640, 480).ok()?;
+        let camera = match dist {
+            Some(d) => camera.with_distortion(BrownConrady::from_array(d)).ok()?,
+            None => camera,
+        };
+        Some(Self {
+            camera,
+            depth_scale: TUM_DEPTH_SCALE,
+        })
+    }
+
+    /// A preset name (`fr1`, `fr2`, `fr3`) or the path of a camera file.
+    pub fn resolve(spec: &str) -> Result<Self, DatasetError> {
+        match Self::preset(spec) {
+            Some(c) => Ok(c),
+            None => Self::from_file(Path::new(spec)),
+        }
+    }
+
+    /// Reads a camera file (format by extension; see the module documentation).
+    pub fn from_file(path: &Path) -> Result<Self, DatasetError> {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if !matches!(ext.as_str(), "json" | "toml" | "yaml" | "yml") {
+            return Err(DatasetError::invalid(
+                path,
+                format!(
+                    "not a camera preset ({}) nor a camera file ending in .json, .toml, .yaml or .yml",
+                    PRESET_NAMES.join(", ")
+                ),
+            ));
+        }
+        let text = crate::text::read_text(path)?;
+        let file: CameraFile = match ext.as_str() {
+            "json" => serde_json::from_str(&text).map_err(|e| {
+                DatasetError::parse(path, e.line(), format!("invalid camera JSON: {e}"))
+            })?,
+            "toml" => toml::from_str(&text)
+                .map_err(|e| DatasetError::invalid(path, format!("invalid camera TOML: {e}")))?,
+            _ => serde_yaml_ng::from_str(&text).map_err(|e| match e.location() {
+                Some(loc) => {
+                    DatasetError::parse(path, loc.line(), format!("invalid camera YAML: {e}"))
+                }
+                None => DatasetError::invalid(path, format!("invalid camera YAML: {e}")),
+            })?,
+        };
+        file.into_config()
+            .map_err(|message| DatasetError::invalid(path, message))
+    }
+
+    /// The camera file form of this configuration, as pretty JSON.
+    pub fn to_json(&self) -> String {
+        let c = &self.camera;
+        let file = CameraFile {
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+            width: c.width,
+            height: c.height,
+            depth_scale: self.depth_scale,
+            distortion: c.distortion.map(|d| d.to_array().to_vec()),
+        };
+        // Serialising plain numbers cannot fail.
+        serde_json::to_string_pretty(&file).unwrap_or_default()
+    }
+}
+
+impl CameraFile {
+    fn into_config(self) -> Result<CameraConfig, String> {
+        let camera = PinholeCamera::new(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+            .map_err(|e| e.to_string())?;
+        let camera = match self.distortion {
+            None => camera,
+            Some(d) => {
+                let coeffs = match d.as_slice() {
+                    [k1, k2, p1, p2] => [*k1, *k2, *p1, *p2, 0.0],
+                    [k1, k2, p1, p2, k3] => [*k1, *k2, *p1, *p2, *k3],
+                    other => {
+                        return Err(format!(
+                            "distortion must hold 4 or 5 numbers [k1, k2, p1, p2(, k3)], found {}",
+                            other.len()
+                        ))
+                    }
+                };
+                camera
+                    .with_distortion(BrownConrady::from_array(coeffs))
+                    .map_err(|e| e.to_string())?
+            }
+        };
+        if !(self.depth_scale.is_finite() && self.depth_scale > 0.0) {
+            return Err(format!(
+                "depth_scale = {} is invalid: must be a positive number of raw units per metre",
+                self.depth_scale
+            ));
+        }
+        Ok(CameraConfig {
+            camera,
+            depth_scale: self.depth_scale,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(name: &str, text: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("stride-cam-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn presets_hold_the_published_values() {
+        let fr1 = CameraConfig::preset("fr1").unwrap();
+        assert_eq!(fr1.camera.fx, 517.306408);
+        assert_eq!(fr1.camera.distortion.unwrap().k3, 1.163314);
+        let fr3 = CameraConfig::resolve("fr3").unwrap();
+        assert_eq!((fr3.camera.cx, fr3.camera.cy), (320.1, 247.6));
+        assert!(fr3.camera.distortion.is_none());
+        assert_eq!(fr3.depth_scale, 5000.0);
+        assert!(CameraConfig::preset("fr4").is_none());
+    }
+
+    #[test]
+    fn reads_json_toml_and_yaml_ignoring_unknown_keys() {
+        let json = write(
+            "c.json",
+            r#"{"fx": 500, "fy": 501, "cx": 320, "cy": 240, "width": 640, "height": 480,
+               "depth_scale": 1000, "distortion": [0.1, 0.01, 0, 0], "note": "ignored"}"#,
+        );
+        let c = CameraConfig::from_file(&json).unwrap();
+        assert_eq!(c.camera.fy, 501.0);
+        assert_eq!(c.depth_scale, 1000.0);
+        assert_eq!(c.camera.distortion.unwrap().k3, 0.0);
+        let toml = write(
+            "c.toml",
+            "fx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\ndepth_scale = 5000.0\nmodel = \"x\"\n",
+        );
+        assert!(CameraConfig::from_file(&toml).unwrap().camera.distortion.is_none());
+        let yaml = write(
+            "c.yaml",
+            "fx: 500\nfy: 500\ncx: 320\ncy: 240\nwidth: 640\nheight: 480\ndepth_scale: 5000\ndistortion: [0.1, 0, 0, 0, 0.2]\n",
+        );
+        assert_eq!(CameraConfig::from_file(&yaml).unwrap().camera.distortion.unwrap().k3, 0.2);
+        // Round trip through the JSON writer.
+        let back = write("back.json", &c.to_json());
+        assert_eq!(CameraConfig::from_file(&back).unwrap(), c);
+    }
+
+    #[test]
+    fn bad_camera_files_are_named() {
+        let missing_key = write("m.json", r#"{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}"#);
+        let e = CameraConfig::from_file(&missing_key).unwrap_err().to_string();
+        assert!(e.contains("m.json:1: invalid camera JSON: missing field `depth_scale`"), "{e}");
+        let negative = write("n.yaml", "fx: -1\nfy: 500\ncx: 1\ncy: 1\nwidth: 640\nheight: 480\ndepth_scale: 5000\n");
+        let e = CameraConfig::from_file(&negative).unwrap_err().to_string();
+        assert!(e.contains("n.yaml: camera parameter fx = -1 is invalid: must be positive"), "{e}");
+        let bad_dist = write("d.toml", "fx = 1.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 4\nheight = 4\ndepth_scale = 1.0\ndistortion = [1.0]\n");
+        assert!(CameraConfig::from_file(&bad_dist).unwrap_err().to_string().contains("4 or 5 numbers"));
+        let e = CameraConfig::resolve("camera.txt").unwrap_err().to_string();
+        assert!(e.contains("not a camera preset"), "{e}");
+    }
+}

@@ -1,0 +1,70 @@
+//! The error type of this crate: every variant names the file (and line, where there is one).
+
+use std::path::PathBuf;
+
+/// An error reading or writing a dataset file.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// The operating system refused to read or write a file.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A line of a text file could not be understood.
+    #[error("{}:{line}: {message}", path.display())]
+    Parse {
+        /// The file concerned.
+        path: PathBuf,
+        /// One-based line number.
+        line: usize,
+        /// What is wrong with the line.
+        message: String,
+    },
+    /// A file is readable but its content is unusable as a whole.
+    #[error("{}: {message}", path.display())]
+    Invalid {
+        /// The file or folder concerned.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A PNG image could not be decoded or has an unexpected format.
+    #[error("{}: {message}", path.display())]
+    Image {
+        /// The image file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
+}
+
+impl DatasetError {
+    /// Wraps an I/O error with the path it concerns.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    /// A parse error at a one-based line of a file.
+    pub fn parse(path: impl Into<PathBuf>, line: usize, message: impl Into<String>) -> Self {
+        Self::Parse {
+            path: path.into(),
+            line,
+            message: message.into(),
+        }
+    }
+
+    /// An error about a file or folder as a whole.
+    pub fn invalid(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+}

@@ -1,0 +1,24 @@
+//! # stride-datasets
+//!
+//! Where stride's data comes from and goes to:
+//!
+//! * [`trajectory_file`]: TUM trajectory files (`t tx ty tz qx qy qz qw`), read with errors
+//!   that name the file and line, written atomically.
+//! * [`camera_config`]: camera presets (TUM fr1/fr2/fr3) and camera files (JSON, TOML,
+//!   YAML) holding intrinsics, image size, depth scale and optional distortion.
+//! * [`tum`]: TUM RGB-D sequence folders (`rgb.txt`, `depth.txt`, `groundtruth.txt`),
+//!   rgb/depth association as TUM's `associate.py`, and a frame iterator that decodes PNGs
+//!   ahead on a background thread.
+//! * [`png_io`]: PNG decoding and encoding for colour and 16-bit depth images.
+//! * [`data_root`]: where the shared real data lives (`STRIDE_DATA` or `../shared/data`).
+
+pub mod camera_config;
+pub mod data_root;
+pub mod error;
+pub mod png_io;
+pub mod text;
+pub mod trajectory_file;
+pub mod tum;
+
+pub use camera_config::CameraConfig;
+pub use error::DatasetError;

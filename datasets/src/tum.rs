@@ -1,0 +1,346 @@
+//! TUM RGB-D sequence folders.
+//!
+//! A folder holds `rgb/` and `depth/` PNGs listed with their timestamps in `rgb.txt` and
+//! `depth.txt` (`timestamp filename` per line), and optionally `groundtruth.txt` (a TUM
+//! trajectory) and `camera.json` (a camera file, see [`crate::camera_config`]).
+//!
+//! Colour and depth images are associated as TUM's `associate.py` does (greedy, one-to-one,
+//! smallest time difference first, `|dt| < 0.02 s` by default, optional offset added to the
+//! depth stamps). The camera is, in order of preference: the one asked for, the folder's
+//! `camera.json`, or the TUM preset named by the folder (`..._freiburg1_...` is `fr1`).
+
+use crate::camera_config::CameraConfig;
+use crate::error::DatasetError;
+use crate::png_io::{decode_depth, decode_rgb};
+use crate::text::{data_lines, parse_finite, read_text};
+use crate::trajectory_file::read_tum_trajectory;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc::{sync_channel, Receiver};
+use std::thread::JoinHandle;
+use std::time::Instant;
+use stride_core::frame::RgbdFrame;
+use stride_core::time::associate_greedy;
+use stride_core::trajectory::Trajectory;
+
+/// How colour and depth stamps are paired.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AssociationOptions {
+    /// Largest accepted `|t_rgb - (t_depth + offset)|` in seconds (exclusive, as the TUM tool).
+    pub max_diff_s: f64,
+    /// Added to depth stamps before comparing (seconds).
+    pub offset_s: f64,
+}
+
+impl Default for AssociationOptions {
+    /// TUM's defaults: 0.02 s window, no offset.
+    fn default() -> Self {
+        Self {
+            max_diff_s: 0.02,
+            offset_s: 0.0,
+        }
+    }
+}
+
+/// One associated colour/depth pair.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameEntry {
+    /// Colour image time (s).
+    pub t_rgb_s: f64,
+    /// Colour image file.
+    pub rgb_path: PathBuf,
+    /// Depth image time (s).
+    pub t_depth_s: f64,
+    /// Depth image file.
+    pub depth_path: PathBuf,
+}
+
+/// Where the sequence's camera came from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum CameraSource {
+    /// Given by the caller (a preset name or a file path).
+    Requested(String),
+    /// The folder's own `camera.json`.
+    SequenceFile(PathBuf),
+    /// A TUM preset named by the folder (`freiburg1` is `fr1`, ...).
+    FolderName(&'static str),
+}
+
+/// An opened TUM RGB-D sequence: its associated frames, camera and ground truth.
+#[derive(Debug, Clone)]
+pub struct TumSequence {
+    /// The sequence folder.
+    pub dir: PathBuf,
+    /// Intrinsics and depth scale used to decode the frames.
+    pub camera: CameraConfig,
+    /// Where [`Self::camera`] came from.
+    pub camera_source: CameraSource,
+    /// Associated colour/depth pairs, in time order.
+    pub frames: Vec<FrameEntry>,
+    /// `groundtruth.txt` (poses `world_from_camera`), when the folder has one.
+    pub groundtruth: Option<Trajectory>,
+    /// Colour images left without a depth partner.
+    pub unmatched_rgb: usize,
+}
+
+/// Reads `rgb.txt`/`depth.txt`: `timestamp filename` lines with strictly increasing stamps.
+pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> {
+    let text = read_text(path)?;
+    let mut out: Vec<(f64, String)> = Vec::new();
+    let mut last_line = 0;
+    for dl in data_lines(&text) {
+        let [stamp, file] = dl.fields.as_slice() else {
+            return Err(DatasetError::parse(
+                path,
+                dl.line,
+                format!("expected 2 fields (timestamp filename), found {}", dl.fields.len()),
+            ));
+        };
+        let t = parse_finite(path, dl.line, "timestamp", stamp)?;
+        if let Some((prev, _)) = out.last() {
+            if t <= *prev {
+                return Err(DatasetError::parse(
+                    path,
+                    dl.line,
+                    format!(
+                        "timestamp {t:.6} is not after {prev:.6} on line {last_line}: \
+                         entries must be sorted by time without duplicates"
+                    ),
+                ));
+            }
+        }
+        out.push((t, (*file).to_owned()));
+        last_line = dl.line;
+    }
+    Ok(out)
+}
+
+fn preset_from_folder_name(dir: &Path) -> Option<&'static str> {
+    let name = dir.canonicalize().ok()?.file_name()?.to_string_lossy().into_owned();
+    ["freiburg1", "freiburg2", "freiburg3"]
+        .iter()
+        .zip(["fr1", "fr2", "fr3"])
+        .find(|(key, _)| name.contains(*key))
+        .map(|(_, preset)| preset)
+}
+
+impl TumSequence {
+    /// Opens a sequence folder, associates its images and loads its ground truth.
+    ///
+    /// `camera` is a preset name (`fr1`, `fr2`, `fr3`) or a camera file; `None` means the
+    /// folder's `camera.json`, else the preset its name implies, else an error.
+    pub fn open(
+        dir: &Path,
+        camera: Option<&str>,
+        assoc: AssociationOptions,
+    ) -> Result<Self, DatasetError> {
+        if !dir.is_dir() {
+            return Err(DatasetError::invalid(dir, "not a folder (expected a TUM RGB-D sequence)"));
+        }
+        let (camera, camera_source) = match camera {
+            Some(spec) => (CameraConfig::resolve(spec)?, CameraSource::Requested(spec.to_owned())),
+            None => {
+                let file = dir.join("camera.json");
+                if file.is_file() {
+                    (CameraConfig::from_file(&file)?, CameraSource::SequenceFile(file))
+                } else if let Some(preset) = preset_from_folder_name(dir) {
+                    let config = CameraConfig::preset(preset)
+                        .ok_or_else(|| DatasetError::invalid(dir, "unknown camera preset"))?;
+                    (config, CameraSource::FolderName(preset))
+                } else {
+                    return Err(DatasetError::invalid(
+                        dir,
+                        "no camera given, no camera.json in the folder, and the folder name \
+                         names no TUM camera: pass --camera fr1|fr2|fr3|FILE",
+                    ));
+                }
+            }
+        };
+        let rgb = read_image_list(&dir.join("rgb.txt"))?;
+        let depth = read_image_list(&dir.join("depth.txt"))?;
+        let t_rgb: Vec<f64> = rgb.iter().map(|(t, _)| *t).collect();
+        let t_depth: Vec<f64> = depth.iter().map(|(t, _)| *t).collect();
+        let pairs = associate_greedy(&t_rgb, &t_depth, assoc.offset_s, assoc.max_diff_s);
+        let frames: Vec<FrameEntry> = pairs
+            .iter()
+            .filter_map(|&(i, j)| {
+                let (tr, fr) = rgb.get(i)?;
+                let (td, fd) = depth.get(j)?;
+                Some(FrameEntry {
+                    t_rgb_s: *tr,
+                    rgb_path: dir.join(fr),
+                    t_depth_s: *td,
+                    depth_path: dir.join(fd),
+                })
+            })
+            .collect();
+        if frames.is_empty() {
+            return Err(DatasetError::invalid(
+                dir,
+                format!(
+                    "no colour image has a depth image within {} s ({} rgb, {} depth entries)",
+                    assoc.max_diff_s,
+                    rgb.len(),
+                    depth.len()
+                ),
+            ));
+        }
+        let gt_path = dir.join("groundtruth.txt");
+        let groundtruth = if gt_path.is_file() {
+            Some(read_tum_trajectory(&gt_path)?)
+        } else {
+            None
+        };
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            camera,
+            camera_source,
+            unmatched_rgb: rgb.len() - frames.len(),
+            frames,
+            groundtruth,
+        })
+    }
+
+    /// Number of associated frames.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// True when the sequence has no frame (never, for a successfully opened sequence).
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Reads and decodes frame `index`, checking that both images match the camera's size.
+    pub fn load_frame(&self, index: usize) -> Result<RgbdFrame, DatasetError> {
+        let entry = self
+            .frames
+            .get(index)
+            .ok_or_else(|| DatasetError::invalid(&self.dir, format!("no frame #{index}")))?;
+        load_entry(index, entry, &self.camera)
+    }
+
+    /// Decodes frames `0..max_frames` (all when `None`) on a background thread, keeping up
+    /// to `prefetch` decoded frames ready. A frame that fails to load is reported in place and
+    /// the stream continues with the next one.
+    pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
+        let n = max_frames.map_or(self.frames.len(), |m| m.min(self.frames.len()));
+        let entries: Vec<FrameEntry> = self.frames.iter().take(n).cloned().collect();
+        let camera = self.camera;
+        let (tx, rx) = sync_channel(prefetch.max(1));
+        let handle = std::thread::Builder::new()
+            .name("stride-decode".into())
+            .spawn(move || {
+                for (index, entry) in entries.iter().enumerate() {
+                    let start = Instant::now();
+                    let item = load_entry(index, entry, &camera)
+                        .map(|frame| DecodedFrame {
+                            frame,
+                            decode_s: start.elapsed().as_secs_f64(),
+                        })
+                        .map_err(|error| FrameFailure { index, error });
+                    if tx.send(item).is_err() {
+                        break; // the consumer hung up
+                    }
+                }
+            })
+            .ok();
+        FrameStream {
+            rx,
+            _handle: handle,
+            len: n,
+        }
+    }
+}
+
+fn load_entry(index: usize, entry: &FrameEntry, camera: &CameraConfig) -> Result<RgbdFrame, DatasetError> {
+    let rgb_bytes = std::fs::read(&entry.rgb_path).map_err(|e| DatasetError::io(&entry.rgb_path, e))?;
+    let depth_bytes =
+        std::fs::read(&entry.depth_path).map_err(|e| DatasetError::io(&entry.depth_path, e))?;
+    let rgb = decode_rgb(&rgb_bytes, &entry.rgb_path)?;
+    let depth_m = decode_depth(&depth_bytes, &entry.depth_path, camera.depth_scale)?;
+    let (w, h) = (camera.camera.width, camera.camera.height);
+    for (path, iw, ih) in [
+        (&entry.rgb_path, rgb.width(), rgb.height()),
+        (&entry.depth_path, depth_m.width(), depth_m.height()),
+    ] {
+        if (iw, ih) != (w, h) {
+            return Err(DatasetError::Image {
+                path: path.clone(),
+                message: format!("image is {iw}x{ih} but the camera is {w}x{h}"),
+            });
+        }
+    }
+    Ok(RgbdFrame {
+        index,
+        t_s: entry.t_rgb_s,
+        t_depth_s: entry.t_depth_s,
+        rgb,
+        depth_m,
+    })
+}
+
+/// A frame decoded by [`FrameStream`], with the time decoding took.
+#[derive(Debug, Clone)]
+pub struct DecodedFrame {
+    /// The frame.
+    pub frame: RgbdFrame,
+    /// Wall time spent reading and decoding both PNGs (s), on the decoder thread.
+    pub decode_s: f64,
+}
+
+/// A frame [`FrameStream`] could not load.
+#[derive(Debug)]
+pub struct FrameFailure {
+    /// Index of the frame in the sequence.
+    pub index: usize,
+    /// Why it failed (names the file).
+    pub error: DatasetError,
+}
+
+/// Frames decoded ahead on a background thread; see [`TumSequence::stream`].
+pub struct FrameStream {
+    rx: Receiver<Result<DecodedFrame, FrameFailure>>,
+    _handle: Option<JoinHandle<()>>,
+    len: usize,
+}
+
+impl FrameStream {
+    /// Number of frames the stream will yield (successes and failures).
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// True when the stream yields nothing.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+}
+
+impl Iterator for FrameStream {
+    type Item = Result<DecodedFrame, FrameFailure>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        self.rx.recv().ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn image_lists_must_be_sorted_and_two_fields() {
+        let dir = std::env::temp_dir().join(format!("stride-tum-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("rgb.txt");
+        std::fs::write(&p, "# c\n1.0 rgb/1.png\n2.0 rgb/2.png\n").unwrap();
+        assert_eq!(read_image_list(&p).unwrap().len(), 2);
+        std::fs::write(&p, "1.0 rgb/1.png\n1.0 rgb/2.png\n").unwrap();
+        let e = read_image_list(&p).unwrap_err().to_string();
+        assert!(e.contains("rgb.txt:2: timestamp 1.000000 is not after"), "{e}");
+        std::fs::write(&p, "1.0 rgb/1.png extra\n").unwrap();
+        let e = read_image_list(&p).unwrap_err().to_string();
+        assert!(e.contains("rgb.txt:1: expected 2 fields"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,63 @@
+//! Pairing ground-truth and estimated poses in time, as each preset's tool does.
+
+use crate::error::EvalError;
+use crate::options::Preset;
+use stride_core::time::{associate_greedy, associate_nearest};
+use stride_core::trajectory::Trajectory;
+
+/// Index pairs `(i_gt, i_est)` of associated poses, in the order the tool produces them:
+/// evo walks the shorter trajectory in time order, TUM sorts by ground-truth time.
+pub fn associate(
+    gt: &Trajectory,
+    est: &Trajectory,
+    preset: Preset,
+    t_max_diff_s: f64,
+    offset_s: f64,
+) -> Vec<(usize, usize)> {
+    match preset {
+        Preset::Evo => {
+            // evo_ape/evo_rpe: associate_trajectories(ref, est): the shorter one drives; the
+            // offset shifts the estimate's stamps (est + offset ~ ref).
+            if est.len() > gt.len() {
+                associate_nearest(gt.stamps_s(), est.stamps_s(), offset_s, t_max_diff_s)
+            } else {
+                associate_nearest(est.stamps_s(), gt.stamps_s(), -offset_s, t_max_diff_s)
+                    .into_iter()
+                    .map(|(i_est, i_gt)| (i_gt, i_est))
+                    .collect()
+            }
+        }
+        // evaluate_ate.py: associate(first=gt, second=est, offset, max_difference).
+        Preset::Tum => associate_greedy(gt.stamps_s(), est.stamps_s(), offset_s, t_max_diff_s),
+    }
+}
+
+fn span(t: &Trajectory) -> String {
+    match t.time_span_s() {
+        Some((a, b)) => format!("{a:.3}..{b:.3} s"),
+        None => "nothing".to_owned(),
+    }
+}
+
+/// The error for too few associated pairs, with both time spans to help the user.
+pub fn too_few_pairs(
+    gt: &Trajectory,
+    est: &Trajectory,
+    found: usize,
+    needed: usize,
+    t_max_diff_s: f64,
+    offset_s: f64,
+) -> EvalError {
+    EvalError::TooFewPairs {
+        found,
+        needed,
+        t_max_diff_s,
+        gt_span: span(gt),
+        est_span: span(est),
+        offset_note: if offset_s != 0.0 {
+            format!(", offset {offset_s} s added to the estimate")
+        } else {
+            String::new()
+        },
+    }
+}

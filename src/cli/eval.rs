@@ -1,0 +1,186 @@
+//! `stride eval ate|rpe`.
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use std::path::{Path, PathBuf};
+use stride_core::fsutil::write_atomic;
+use stride_datasets::trajectory_file::read_tum_trajectory;
+use stride_eval::report::Report;
+use stride_eval::{ate, rpe, Align, AteOptions, DeltaUnit, Preset, RpeOptions};
+
+#[derive(Debug, Subcommand)]
+pub enum EvalCommand {
+    /// Absolute trajectory error: distance between associated positions after alignment.
+    Ate(AteArgs),
+    /// Relative pose error: error of the motion between poses `delta` apart (drift).
+    Rpe(RpeArgs),
+}
+
+/// Options shared by both metrics.
+#[derive(Debug, Args)]
+pub struct CommonArgs {
+    /// Ground-truth trajectory (TUM format: t tx ty tz qx qy qz qw).
+    #[arg(long)]
+    gt: PathBuf,
+    /// Estimated trajectory (TUM format).
+    #[arg(long)]
+    est: PathBuf,
+    /// Whose semantics to reproduce: evo (evo_ape/evo_rpe) or tum (evaluate_ate.py /
+    /// evaluate_rpe.py --fixed_delta). See docs/evaluation.md.
+    #[arg(long, default_value = "evo")]
+    preset: Preset,
+    /// Alignment of the estimate: se3, sim3, origin or none [default: ATE evo none, ATE tum
+    /// se3, RPE none].
+    #[arg(long)]
+    align: Option<Align>,
+    /// Association window in seconds [default: evo 0.01, tum 0.02].
+    #[arg(long, value_name = "S")]
+    t_max_diff: Option<f64>,
+    /// Time offset in seconds added to the estimate's stamps before association.
+    #[arg(long, value_name = "S", default_value_t = 0.0, allow_negative_numbers = true)]
+    offset: f64,
+    /// Print exactly one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Write the plots as SVG to this file.
+    #[arg(long, value_name = "FILE.svg")]
+    plot: Option<PathBuf>,
+    /// Write report.md, report.html and the plots into this folder.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct AteArgs {
+    #[command(flatten)]
+    common: CommonArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct RpeArgs {
+    #[command(flatten)]
+    common: CommonArgs,
+    /// Distance between the poses of a pair [default: evo 1 frame, tum 1 second].
+    #[arg(long)]
+    delta: Option<f64>,
+    /// Unit of --delta: frames, seconds or metres.
+    #[arg(long)]
+    delta_unit: Option<DeltaUnit>,
+    /// Use every pair `delta` apart instead of consecutive non-overlapping pairs (evo preset).
+    #[arg(long)]
+    all_pairs: bool,
+    /// Relative tolerance on delta (metres/seconds) in --all-pairs mode.
+    #[arg(long, default_value_t = 0.1)]
+    delta_tol: f64,
+}
+
+pub fn run(cmd: EvalCommand) -> Result<()> {
+    match cmd {
+        EvalCommand::Ate(a) => run_ate(a),
+        EvalCommand::Rpe(a) => run_rpe(a),
+    }
+}
+
+fn load(c: &CommonArgs) -> Result<(stride_core::trajectory::Trajectory, stride_core::trajectory::Trajectory)> {
+    let gt = read_tum_trajectory(&c.gt).context("reading the ground truth (--gt)")?;
+    let est = read_tum_trajectory(&c.est).context("reading the estimate (--est)")?;
+    Ok((gt, est))
+}
+
+fn emit(
+    c: &CommonArgs,
+    json: serde_json::Value,
+    table: String,
+    warnings: &[String],
+    svg: impl Fn() -> String,
+    fill_report: impl Fn(&mut Report),
+    title: &str,
+) -> Result<()> {
+    for w in warnings {
+        tracing::warn!("{w}");
+    }
+    if c.json {
+        println!("{}", serde_json::to_string(&json)?);
+    } else {
+        print!("{table}");
+    }
+    if let Some(p) = &c.plot {
+        write_atomic(p, svg().as_bytes()).with_context(|| format!("writing the plot {}", p.display()))?;
+        tracing::info!("plot written to {}", p.display());
+    }
+    if let Some(dir) = &c.report {
+        let mut report = Report::new(title);
+        report.paragraph(format!(
+            "Ground truth: {}. Estimate: {}.",
+            c.gt.display(),
+            c.est.display()
+        ));
+        fill_report(&mut report);
+        report.code(std::env::args().collect::<Vec<_>>().join(" "));
+        write_report_json(dir, &json)?;
+        report.write(dir).with_context(|| format!("writing the report into {}", dir.display()))?;
+        tracing::info!("report written to {}", dir.join("report.html").display());
+    }
+    Ok(())
+}
+
+fn write_report_json(dir: &Path, json: &serde_json::Value) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let p = dir.join("report.json");
+    write_atomic(&p, serde_json::to_string_pretty(json)?.as_bytes())
+        .with_context(|| format!("writing {}", p.display()))
+}
+
+fn run_ate(a: AteArgs) -> Result<()> {
+    let c = &a.common;
+    let (gt, est) = load(c)?;
+    let mut o = AteOptions::for_preset(c.preset);
+    if let Some(al) = c.align {
+        o.align = al;
+    }
+    if let Some(t) = c.t_max_diff {
+        o.t_max_diff_s = t;
+    }
+    o.offset_s = c.offset;
+    let r = ate(&gt, &est, &o).context("computing the ATE")?;
+    emit(
+        c,
+        r.to_json(),
+        r.table(),
+        &r.warnings,
+        || r.chart_svg(),
+        |rep| r.add_to_report(rep, "ate"),
+        "stride eval: absolute trajectory error",
+    )
+}
+
+fn run_rpe(a: RpeArgs) -> Result<()> {
+    let c = &a.common;
+    let (gt, est) = load(c)?;
+    let mut o = RpeOptions::for_preset(c.preset);
+    if let Some(al) = c.align {
+        o.align = al;
+    }
+    if let Some(t) = c.t_max_diff {
+        o.t_max_diff_s = t;
+    }
+    o.offset_s = c.offset;
+    if let Some(d) = a.delta {
+        o.delta = d;
+    }
+    if let Some(u) = a.delta_unit {
+        o.unit = u;
+    }
+    o.all_pairs = a.all_pairs;
+    o.rel_delta_tol = a.delta_tol;
+    let r = rpe(&gt, &est, &o).context("computing the RPE")?;
+    emit(
+        c,
+        r.to_json(),
+        r.table(),
+        &r.warnings,
+        || r.chart_svg(),
+        |rep| r.add_to_report(rep, "rpe"),
+        "stride eval: relative pose error",
+    )
+}

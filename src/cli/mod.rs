@@ -1,0 +1,58 @@
+//! Command-line interface: argument definitions and dispatch.
+
+mod bench;
+mod eval;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// stride: feature-based RGB-D SLAM and 2.5-D elevation mapping for walking robots, with
+/// evaluation against ground truth that matches evo and the TUM benchmark tools.
+#[derive(Debug, Parser)]
+#[command(name = "stride", version, about, long_about = None)]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides.
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    /// Only warnings and errors on stderr.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Compare an estimated trajectory with ground truth (ATE, RPE).
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
+    /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Logs go to stderr so that stdout carries only results (tables or JSON).
+pub fn init_logging(verbose: u8, quiet: bool) {
+    let default = match (quiet, verbose) {
+        (true, _) => "warn",
+        (false, 0) => "info",
+        (false, 1) => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .without_time()
+        .try_init();
+}
+
+/// Runs the parsed command.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Eval(c) => eval::run(c),
+        Command::Bench(c) => bench::run(c),
+    }
+}

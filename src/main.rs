@@ -1,0 +1,19 @@
+//! `stride`: RGB-D SLAM and 2.5-D elevation mapping for walking robots.
+//!
+//! The binary wires the library crates together; see `stride --help`.
+
+mod cli;
+
+use clap::Parser;
+
+fn main() -> std::process::ExitCode {
+    let args = cli::Cli::parse();
+    cli::init_logging(args.verbose, args.quiet);
+    match cli::run(args) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
