@@ -190,10 +190,7 @@ impl PinholeCamera {
 
     /// Undistorted normalised coordinates `(X/Z, Y/Z)` of the ray through a pixel.
     pub fn normalized_from_pixel(&self, pixel: &Point2<f64>) -> Vector2<f64> {
-        let xd = Vector2::new(
-            (pixel.x - self.cx) / self.fx,
-            (pixel.y - self.cy) / self.fy,
-        );
+        let xd = Vector2::new((pixel.x - self.cx) / self.fx, (pixel.y - self.cy) / self.fy);
         match &self.distortion {
             Some(d) => d.undistort(xd),
             None => xd,
@@ -279,7 +276,13 @@ mod tests {
         assert!(PinholeCamera::new(1.0, 1.0, 0.0, 0.0, 0, 10).is_err());
         let cam = PinholeCamera::new(1.0, 1.0, 0.0, 0.0, 10, 10).unwrap();
         assert!(cam
-            .with_distortion(BrownConrady::from_array([f64::INFINITY, 0.0, 0.0, 0.0, 0.0]))
+            .with_distortion(BrownConrady::from_array([
+                f64::INFINITY,
+                0.0,
+                0.0,
+                0.0,
+                0.0
+            ]))
             .is_err());
         assert!(cam
             .with_distortion(BrownConrady::default())

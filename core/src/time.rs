@@ -159,7 +159,9 @@ mod tests {
 
     /// A small deterministic generator (no external crates needed for tests).
     fn lcg(seed: &mut u64) -> f64 {
-        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (*seed >> 11) as f64 / (1u64 << 53) as f64
     }
 
@@ -218,6 +220,9 @@ mod tests {
     #[test]
     fn nanosecond_conversions() {
         assert_eq!(nanos_from_seconds(1.5), 1_500_000_000);
-        assert_eq!(seconds_from_nanos(1_341_841_873_273_820_000), 1341841873.27382);
+        assert_eq!(
+            seconds_from_nanos(1_341_841_873_273_820_000),
+            1341841873.27382
+        );
     }
 }

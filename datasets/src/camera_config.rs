@@ -129,8 +129,9 @@ impl CameraConfig {
 
 impl CameraFile {
     fn into_config(self) -> Result<CameraConfig, String> {
-        let camera = PinholeCamera::new(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
-            .map_err(|e| e.to_string())?;
+        let camera =
+            PinholeCamera::new(self.fx, self.fy, self.cx, self.cy, self.width, self.height)
+                .map_err(|e| e.to_string())?;
         let camera = match self.distortion {
             None => camera,
             Some(d) => {
@@ -201,12 +202,24 @@ mod tests {
             "c.toml",
             "fx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\ndepth_scale = 5000.0\nmodel = \"x\"\n",
         );
-        assert!(CameraConfig::from_file(&toml).unwrap().camera.distortion.is_none());
+        assert!(CameraConfig::from_file(&toml)
+            .unwrap()
+            .camera
+            .distortion
+            .is_none());
         let yaml = write(
             "c.yaml",
             "fx: 500\nfy: 500\ncx: 320\ncy: 240\nwidth: 640\nheight: 480\ndepth_scale: 5000\ndistortion: [0.1, 0, 0, 0, 0.2]\n",
         );
-        assert_eq!(CameraConfig::from_file(&yaml).unwrap().camera.distortion.unwrap().k3, 0.2);
+        assert_eq!(
+            CameraConfig::from_file(&yaml)
+                .unwrap()
+                .camera
+                .distortion
+                .unwrap()
+                .k3,
+            0.2
+        );
         // Round trip through the JSON writer.
         let back = write("back.json", &c.to_json());
         assert_eq!(CameraConfig::from_file(&back).unwrap(), c);
@@ -214,14 +227,31 @@ mod tests {
 
     #[test]
     fn bad_camera_files_are_named() {
-        let missing_key = write("m.json", r#"{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}"#);
-        let e = CameraConfig::from_file(&missing_key).unwrap_err().to_string();
-        assert!(e.contains("m.json:1: invalid camera JSON: missing field `depth_scale`"), "{e}");
-        let negative = write("n.yaml", "fx: -1\nfy: 500\ncx: 1\ncy: 1\nwidth: 640\nheight: 480\ndepth_scale: 5000\n");
+        let missing_key = write(
+            "m.json",
+            r#"{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}"#,
+        );
+        let e = CameraConfig::from_file(&missing_key)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("m.json:1: invalid camera JSON: missing field `depth_scale`"),
+            "{e}"
+        );
+        let negative = write(
+            "n.yaml",
+            "fx: -1\nfy: 500\ncx: 1\ncy: 1\nwidth: 640\nheight: 480\ndepth_scale: 5000\n",
+        );
         let e = CameraConfig::from_file(&negative).unwrap_err().to_string();
-        assert!(e.contains("n.yaml: camera parameter fx = -1 is invalid: must be positive"), "{e}");
+        assert!(
+            e.contains("n.yaml: camera parameter fx = -1 is invalid: must be positive"),
+            "{e}"
+        );
         let bad_dist = write("d.toml", "fx = 1.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 4\nheight = 4\ndepth_scale = 1.0\ndistortion = [1.0]\n");
-        assert!(CameraConfig::from_file(&bad_dist).unwrap_err().to_string().contains("4 or 5 numbers"));
+        assert!(CameraConfig::from_file(&bad_dist)
+            .unwrap_err()
+            .to_string()
+            .contains("4 or 5 numbers"));
         let e = CameraConfig::resolve("camera.txt").unwrap_err().to_string();
         assert!(e.contains("not a camera preset"), "{e}");
     }

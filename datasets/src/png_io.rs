@@ -22,7 +22,11 @@ struct Raw {
     bytes: Vec<u8>,
 }
 
-fn decode_raw(bytes: &[u8], path: &Path, transformations: Transformations) -> Result<Raw, DatasetError> {
+fn decode_raw(
+    bytes: &[u8],
+    path: &Path,
+    transformations: Transformations,
+) -> Result<Raw, DatasetError> {
     let mut decoder = png::Decoder::new(Cursor::new(bytes));
     decoder.set_transformations(transformations);
     let mut reader = decoder
@@ -52,12 +56,28 @@ fn read_file(path: &Path) -> Result<Vec<u8>, DatasetError> {
 /// Decodes a colour PNG (8 or 16 bit; grey, grey+alpha, RGB, RGBA or palette) to 8-bit RGB.
 /// Alpha is dropped; 16-bit channels keep their high byte.
 pub fn decode_rgb(bytes: &[u8], path: &Path) -> Result<RgbImage, DatasetError> {
-    let raw = decode_raw(bytes, path, Transformations::EXPAND | Transformations::STRIP_16)?;
+    let raw = decode_raw(
+        bytes,
+        path,
+        Transformations::EXPAND | Transformations::STRIP_16,
+    )?;
     let px: Vec<[u8; 3]> = match raw.color {
-        ColorType::Rgb => raw.bytes.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-        ColorType::Rgba => raw.bytes.chunks_exact(4).map(|c| [c[0], c[1], c[2]]).collect(),
+        ColorType::Rgb => raw
+            .bytes
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
+        ColorType::Rgba => raw
+            .bytes
+            .chunks_exact(4)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect(),
         ColorType::Grayscale => raw.bytes.iter().map(|&g| [g, g, g]).collect(),
-        ColorType::GrayscaleAlpha => raw.bytes.chunks_exact(2).map(|c| [c[0], c[0], c[0]]).collect(),
+        ColorType::GrayscaleAlpha => raw
+            .bytes
+            .chunks_exact(2)
+            .map(|c| [c[0], c[0], c[0]])
+            .collect(),
         ColorType::Indexed => return Err(image_err(path, "palette PNG was not expanded")),
     };
     Image::from_vec(raw.width, raw.height, px).map_err(|e| image_err(path, e.to_string()))
@@ -70,7 +90,11 @@ pub fn read_rgb(path: &Path) -> Result<RgbImage, DatasetError> {
 
 /// Decodes a 16-bit single-channel depth PNG to metres: `raw / depth_scale`, 0 stays 0
 /// (no measurement). Any other PNG format is an error naming the file.
-pub fn decode_depth(bytes: &[u8], path: &Path, depth_scale: f64) -> Result<DepthImage, DatasetError> {
+pub fn decode_depth(
+    bytes: &[u8],
+    path: &Path,
+    depth_scale: f64,
+) -> Result<DepthImage, DatasetError> {
     let raw = decode_raw(bytes, path, Transformations::IDENTITY)?;
     if raw.color != ColorType::Grayscale || raw.depth != BitDepth::Sixteen {
         return Err(image_err(
@@ -95,7 +119,13 @@ pub fn read_depth(path: &Path, depth_scale: f64) -> Result<DepthImage, DatasetEr
     decode_depth(&read_file(path)?, path, depth_scale)
 }
 
-fn encode(width: u32, height: u32, color: ColorType, depth: BitDepth, data: &[u8]) -> Result<Vec<u8>, png::EncodingError> {
+fn encode(
+    width: u32,
+    height: u32,
+    color: ColorType,
+    depth: BitDepth,
+    data: &[u8],
+) -> Result<Vec<u8>, png::EncodingError> {
     let mut out = Vec::with_capacity(data.len() / 2 + 1024);
     {
         let mut enc = png::Encoder::new(&mut out, width, height);
@@ -112,20 +142,43 @@ fn encode(width: u32, height: u32, color: ColorType, depth: BitDepth, data: &[u8
 /// Encodes an 8-bit RGB image as PNG bytes.
 pub fn encode_rgb(img: &RgbImage) -> Result<Vec<u8>, String> {
     let data: Vec<u8> = img.as_slice().iter().flatten().copied().collect();
-    encode(img.width(), img.height(), ColorType::Rgb, BitDepth::Eight, &data).map_err(|e| e.to_string())
+    encode(
+        img.width(),
+        img.height(),
+        ColorType::Rgb,
+        BitDepth::Eight,
+        &data,
+    )
+    .map_err(|e| e.to_string())
 }
 
 /// Encodes an 8-bit grey image as PNG bytes.
 pub fn encode_gray(img: &GrayImage) -> Result<Vec<u8>, String> {
-    encode(img.width(), img.height(), ColorType::Grayscale, BitDepth::Eight, img.as_slice())
-        .map_err(|e| e.to_string())
+    encode(
+        img.width(),
+        img.height(),
+        ColorType::Grayscale,
+        BitDepth::Eight,
+        img.as_slice(),
+    )
+    .map_err(|e| e.to_string())
 }
 
 /// Encodes raw 16-bit depth units as a single-channel PNG (big-endian, as PNG requires).
 pub fn encode_depth_u16(img: &Image<u16>) -> Result<Vec<u8>, String> {
-    let data: Vec<u8> = img.as_slice().iter().flat_map(|v| v.to_be_bytes()).collect();
-    encode(img.width(), img.height(), ColorType::Grayscale, BitDepth::Sixteen, &data)
-        .map_err(|e| e.to_string())
+    let data: Vec<u8> = img
+        .as_slice()
+        .iter()
+        .flat_map(|v| v.to_be_bytes())
+        .collect();
+    encode(
+        img.width(),
+        img.height(),
+        ColorType::Grayscale,
+        BitDepth::Sixteen,
+        &data,
+    )
+    .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -155,9 +208,16 @@ mod tests {
     fn wrong_formats_and_garbage_are_named() {
         let g = Image::from_vec(1, 1, vec![7u8]).unwrap();
         let png = encode_gray(&g).unwrap();
-        let e = decode_depth(&png, Path::new("depth/x.png"), 5000.0).unwrap_err().to_string();
-        assert!(e.starts_with("depth/x.png: a depth image must be a 16-bit"), "{e}");
-        let e = decode_rgb(b"not a png", Path::new("rgb/y.png")).unwrap_err().to_string();
+        let e = decode_depth(&png, Path::new("depth/x.png"), 5000.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("depth/x.png: a depth image must be a 16-bit"),
+            "{e}"
+        );
+        let e = decode_rgb(b"not a png", Path::new("rgb/y.png"))
+            .unwrap_err()
+            .to_string();
         assert!(e.starts_with("rgb/y.png: not a readable PNG"), "{e}");
         let mut truncated = encode_rgb(&Image::filled(64, 64, [9u8, 9, 9])).unwrap();
         truncated.truncate(truncated.len() / 2);

@@ -7,13 +7,37 @@
 use crate::error::DatasetError;
 use std::path::Path;
 
-/// A data line of a text file: its one-based line number and its fields.
-#[derive(Debug, Clone, PartialEq)]
+/// A data line of a text file: its one-based line number and its trimmed text.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DataLine<'a> {
     /// One-based line number in the file.
     pub line: usize,
-    /// The fields, separators removed.
-    pub fields: Vec<&'a str>,
+    /// The line without leading/trailing whitespace.
+    pub text: &'a str,
+}
+
+impl<'a> DataLine<'a> {
+    /// The fields, separators removed (no allocation).
+    pub fn fields(&self) -> impl Iterator<Item = &'a str> {
+        self.text.split([' ', '\t', ',']).filter(|f| !f.is_empty())
+    }
+
+    /// The first `N` fields if the line has exactly `N`; otherwise the count it has.
+    pub fn exact_fields<const N: usize>(&self) -> Result<[&'a str; N], usize> {
+        let mut out = [""; N];
+        let mut n = 0;
+        for f in self.fields() {
+            if let Some(slot) = out.get_mut(n) {
+                *slot = f;
+            }
+            n += 1;
+        }
+        if n == N {
+            Ok(out)
+        } else {
+            Err(n)
+        }
+    }
 }
 
 /// Splits text into data lines (comments and blank lines dropped).
@@ -24,11 +48,10 @@ pub fn data_lines(text: &str) -> impl Iterator<Item = DataLine<'_>> {
         if trimmed.is_empty() || trimmed.starts_with('#') {
             return None;
         }
-        let fields = trimmed
-            .split([' ', '\t', ','])
-            .filter(|f| !f.is_empty())
-            .collect();
-        Some(DataLine { line: i + 1, fields })
+        Some(DataLine {
+            line: i + 1,
+            text: trimmed,
+        })
     })
 }
 
@@ -38,7 +61,10 @@ pub fn read_text(path: &Path) -> Result<String, DatasetError> {
     String::from_utf8(bytes).map_err(|e| {
         DatasetError::invalid(
             path,
-            format!("not UTF-8 text (invalid byte at offset {})", e.utf8_error().valid_up_to()),
+            format!(
+                "not UTF-8 text (invalid byte at offset {})",
+                e.utf8_error().valid_up_to()
+            ),
         )
     })
 }
@@ -73,9 +99,14 @@ mod tests {
         let lines: Vec<_> = data_lines(text).collect();
         assert_eq!(lines.len(), 2);
         assert_eq!(lines[0].line, 3);
-        assert_eq!(lines[0].fields, vec!["1.0", "2", "3", "4"]);
+        assert_eq!(
+            lines[0].fields().collect::<Vec<_>>(),
+            vec!["1.0", "2", "3", "4"]
+        );
+        assert_eq!(lines[0].exact_fields::<4>(), Ok(["1.0", "2", "3", "4"]));
+        assert_eq!(lines[0].exact_fields::<3>(), Err(4));
         assert_eq!(lines[1].line, 5);
-        assert_eq!(lines[1].fields, vec!["5", "6"]);
+        assert_eq!(lines[1].exact_fields::<2>(), Ok(["5", "6"]));
     }
 
     #[test]

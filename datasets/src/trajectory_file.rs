@@ -44,18 +44,15 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Trajectory, Datas
     let mut far_from_unit: Option<(usize, f64)> = None;
     let mut far_count = 0usize;
     for dl in data_lines(text) {
-        if dl.fields.len() != 8 {
-            return Err(DatasetError::parse(
+        let fields = dl.exact_fields::<8>().map_err(|n| {
+            DatasetError::parse(
                 path,
                 dl.line,
-                format!(
-                    "expected 8 fields (t tx ty tz qx qy qz qw), found {}",
-                    dl.fields.len()
-                ),
-            ));
-        }
+                format!("expected 8 fields (t tx ty tz qx qy qz qw), found {n}"),
+            )
+        })?;
         let mut v = [0.0f64; 8];
-        for ((slot, field), name) in v.iter_mut().zip(&dl.fields).zip(FIELD_NAMES) {
+        for ((slot, field), name) in v.iter_mut().zip(fields).zip(FIELD_NAMES) {
             *slot = parse_finite(path, dl.line, name, field)?;
         }
         let [t, tx, ty, tz, qx, qy, qz, qw] = v;
@@ -122,7 +119,8 @@ pub fn format_tum_trajectory(traj: &Trajectory) -> String {
 
 /// Writes a trajectory in TUM format, atomically (temporary file, then rename).
 pub fn write_tum_trajectory(path: &Path, traj: &Trajectory) -> Result<(), DatasetError> {
-    write_atomic(path, format_tum_trajectory(traj).as_bytes()).map_err(|e| DatasetError::io(path, e))
+    write_atomic(path, format_tum_trajectory(traj).as_bytes())
+        .map_err(|e| DatasetError::io(path, e))
 }
 
 #[cfg(test)]
@@ -136,8 +134,9 @@ mod tests {
 
     #[test]
     fn reads_comments_blank_lines_and_separators() {
-        let t = parse("# header\n\n1.0 1 2 3 0 0 0 1\n2.0,1,2,3,0,0,0,1\n3.0\t1\t2\t3\t0\t0\t0\t2\n")
-            .unwrap();
+        let t =
+            parse("# header\n\n1.0 1 2 3 0 0 0 1\n2.0,1,2,3,0,0,0,1\n3.0\t1\t2\t3\t0\t0\t0\t2\n")
+                .unwrap();
         assert_eq!(t.len(), 3);
         assert_eq!(t.stamps_s(), &[1.0, 2.0, 3.0]);
         assert_relative_eq!(t.poses()[2].rotation.angle(), 0.0);
@@ -181,8 +180,10 @@ mod tests {
 
     #[test]
     fn write_then_read_round_trips() {
-        let t = parse("1305031102.160407 1.344379 0.627206 1.661754 0.658249 0.611043 -0.294444 -0.326553\n")
-            .unwrap();
+        let t = parse(
+            "1305031102.160407 1.344379 0.627206 1.661754 0.658249 0.611043 -0.294444 -0.326553\n",
+        )
+        .unwrap();
         let back = parse(&format_tum_trajectory(&t)).unwrap();
         assert_eq!(back.stamps_s(), t.stamps_s());
         assert_relative_eq!(back.poses()[0], t.poses()[0], epsilon = 1e-9);

@@ -88,13 +88,13 @@ pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> 
     let mut out: Vec<(f64, String)> = Vec::new();
     let mut last_line = 0;
     for dl in data_lines(&text) {
-        let [stamp, file] = dl.fields.as_slice() else {
-            return Err(DatasetError::parse(
+        let [stamp, file] = dl.exact_fields::<2>().map_err(|n| {
+            DatasetError::parse(
                 path,
                 dl.line,
-                format!("expected 2 fields (timestamp filename), found {}", dl.fields.len()),
-            ));
-        };
+                format!("expected 2 fields (timestamp filename), found {n}"),
+            )
+        })?;
         let t = parse_finite(path, dl.line, "timestamp", stamp)?;
         if let Some((prev, _)) = out.last() {
             if t <= *prev {
@@ -108,14 +108,19 @@ pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> 
                 ));
             }
         }
-        out.push((t, (*file).to_owned()));
+        out.push((t, file.to_owned()));
         last_line = dl.line;
     }
     Ok(out)
 }
 
 fn preset_from_folder_name(dir: &Path) -> Option<&'static str> {
-    let name = dir.canonicalize().ok()?.file_name()?.to_string_lossy().into_owned();
+    let name = dir
+        .canonicalize()
+        .ok()?
+        .file_name()?
+        .to_string_lossy()
+        .into_owned();
     ["freiburg1", "freiburg2", "freiburg3"]
         .iter()
         .zip(["fr1", "fr2", "fr3"])
@@ -134,14 +139,23 @@ impl TumSequence {
         assoc: AssociationOptions,
     ) -> Result<Self, DatasetError> {
         if !dir.is_dir() {
-            return Err(DatasetError::invalid(dir, "not a folder (expected a TUM RGB-D sequence)"));
+            return Err(DatasetError::invalid(
+                dir,
+                "not a folder (expected a TUM RGB-D sequence)",
+            ));
         }
         let (camera, camera_source) = match camera {
-            Some(spec) => (CameraConfig::resolve(spec)?, CameraSource::Requested(spec.to_owned())),
+            Some(spec) => (
+                CameraConfig::resolve(spec)?,
+                CameraSource::Requested(spec.to_owned()),
+            ),
             None => {
                 let file = dir.join("camera.json");
                 if file.is_file() {
-                    (CameraConfig::from_file(&file)?, CameraSource::SequenceFile(file))
+                    (
+                        CameraConfig::from_file(&file)?,
+                        CameraSource::SequenceFile(file),
+                    )
                 } else if let Some(preset) = preset_from_folder_name(dir) {
                     let config = CameraConfig::preset(preset)
                         .ok_or_else(|| DatasetError::invalid(dir, "unknown camera preset"))?;
@@ -252,8 +266,13 @@ impl TumSequence {
     }
 }
 
-fn load_entry(index: usize, entry: &FrameEntry, camera: &CameraConfig) -> Result<RgbdFrame, DatasetError> {
-    let rgb_bytes = std::fs::read(&entry.rgb_path).map_err(|e| DatasetError::io(&entry.rgb_path, e))?;
+fn load_entry(
+    index: usize,
+    entry: &FrameEntry,
+    camera: &CameraConfig,
+) -> Result<RgbdFrame, DatasetError> {
+    let rgb_bytes =
+        std::fs::read(&entry.rgb_path).map_err(|e| DatasetError::io(&entry.rgb_path, e))?;
     let depth_bytes =
         std::fs::read(&entry.depth_path).map_err(|e| DatasetError::io(&entry.depth_path, e))?;
     let rgb = decode_rgb(&rgb_bytes, &entry.rgb_path)?;
@@ -337,7 +356,10 @@ mod tests {
         assert_eq!(read_image_list(&p).unwrap().len(), 2);
         std::fs::write(&p, "1.0 rgb/1.png\n1.0 rgb/2.png\n").unwrap();
         let e = read_image_list(&p).unwrap_err().to_string();
-        assert!(e.contains("rgb.txt:2: timestamp 1.000000 is not after"), "{e}");
+        assert!(
+            e.contains("rgb.txt:2: timestamp 1.000000 is not after"),
+            "{e}"
+        );
         std::fs::write(&p, "1.0 rgb/1.png extra\n").unwrap();
         let e = read_image_list(&p).unwrap_err().to_string();
         assert!(e.contains("rgb.txt:1: expected 2 fields"), "{e}");

@@ -61,7 +61,11 @@ pub struct AteResult {
 }
 
 /// Computes the ATE of `est` against `gt`.
-pub fn ate(gt: &Trajectory, est: &Trajectory, options: &AteOptions) -> Result<AteResult, EvalError> {
+pub fn ate(
+    gt: &Trajectory,
+    est: &Trajectory,
+    options: &AteOptions,
+) -> Result<AteResult, EvalError> {
     let o = *options;
     if !(o.t_max_diff_s.is_finite() && o.t_max_diff_s >= 0.0) {
         return Err(EvalError::InvalidOption(format!(
@@ -89,10 +93,18 @@ pub fn ate(gt: &Trajectory, est: &Trajectory, options: &AteOptions) -> Result<At
         (Preset::Evo, _) => 1,
     };
     if pairs.len() < needed {
-        return Err(too_few_pairs(gt, est, pairs.len(), needed, o.t_max_diff_s, o.offset_s));
+        return Err(too_few_pairs(
+            gt,
+            est,
+            pairs.len(),
+            needed,
+            o.t_max_diff_s,
+            o.offset_s,
+        ));
     }
     let (gt_poses, est_poses, stamps_s) = gather(gt, est, &pairs);
-    let (alignment, mut align_warnings) = compute_alignment(&gt_poses, &est_poses, o.align, o.preset)?;
+    let (alignment, mut align_warnings) =
+        compute_alignment(&gt_poses, &est_poses, o.align, o.preset)?;
     warnings.append(&mut align_warnings);
 
     let mut errors_m = Vec::with_capacity(pairs.len());
@@ -107,9 +119,18 @@ pub fn ate(gt: &Trajectory, est: &Trajectory, options: &AteOptions) -> Result<At
         gt_positions.push(pg.into());
         est_positions.push(pe.into());
     }
-    let (Some(trans_m), Some(rot)) = (Statistics::from_errors(&errors_m), Statistics::from_errors(&rot_deg))
-    else {
-        return Err(too_few_pairs(gt, est, 0, needed, o.t_max_diff_s, o.offset_s));
+    let (Some(trans_m), Some(rot)) = (
+        Statistics::from_errors(&errors_m),
+        Statistics::from_errors(&rot_deg),
+    ) else {
+        return Err(too_few_pairs(
+            gt,
+            est,
+            0,
+            needed,
+            o.t_max_diff_s,
+            o.offset_s,
+        ));
     };
     Ok(AteResult {
         options: o,
@@ -134,7 +155,9 @@ pub(crate) fn gather(
     let mut e = Vec::with_capacity(pairs.len());
     let mut t = Vec::with_capacity(pairs.len());
     for &(i, j) in pairs {
-        if let (Some(pg), Some(pe), Some(tg)) = (gt.poses().get(i), est.poses().get(j), gt.stamps_s().get(i)) {
+        if let (Some(pg), Some(pe), Some(tg)) =
+            (gt.poses().get(i), est.poses().get(j), gt.stamps_s().get(i))
+        {
             g.push(*pg);
             e.push(*pe);
             t.push(*tg);
@@ -179,7 +202,9 @@ mod tests {
     fn pure_offset_is_the_offset_unaligned_and_zero_aligned() {
         let gt = helix(50, 0.1, 100.0);
         let shift = Vector3::new(0.3, -0.4, 0.0); // |shift| = 0.5 m
-        let est = transformed(&gt, |p| Isometry3::from_parts((p.translation.vector + shift).into(), p.rotation));
+        let est = transformed(&gt, |p| {
+            Isometry3::from_parts((p.translation.vector + shift).into(), p.rotation)
+        });
         for preset in [Preset::Evo, Preset::Tum] {
             let r = ate(&gt, &est, &opts(preset, Align::None)).unwrap();
             assert_relative_eq!(r.trans_m.rmse, 0.5, epsilon = 1e-12);
@@ -197,7 +222,10 @@ mod tests {
     #[test]
     fn pure_rotation_of_the_world_frame() {
         let gt = helix(60, 0.1, 0.0);
-        let world = Isometry3::from_parts(Translation3::identity(), UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5));
+        let world = Isometry3::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.5),
+        );
         let est = transformed(&gt, |p| world * p);
         // Unaligned: each position moved by the rotation about the origin: |R p - p|.
         let r = ate(&gt, &est, &opts(Preset::Evo, Align::None)).unwrap();
@@ -218,7 +246,9 @@ mod tests {
     #[test]
     fn scale_needs_sim3() {
         let gt = helix(40, 0.1, 0.0);
-        let est = transformed(&gt, |p| Isometry3::from_parts((p.translation.vector * 0.5).into(), p.rotation));
+        let est = transformed(&gt, |p| {
+            Isometry3::from_parts((p.translation.vector * 0.5).into(), p.rotation)
+        });
         let se3 = ate(&gt, &est, &opts(Preset::Evo, Align::Se3)).unwrap();
         assert!(se3.trans_m.rmse > 0.1);
         let sim3 = ate(&gt, &est, &opts(Preset::Evo, Align::Sim3)).unwrap();
@@ -232,14 +262,30 @@ mod tests {
         // Same poses, clock 0.25 s late, plus a 0.1 m offset to make errors visible.
         let est = Trajectory::from_parts(
             gt.stamps_s().iter().map(|t| t + 0.25).collect(),
-            gt.poses().iter().map(|p| Isometry3::from_parts((p.translation.vector + Vector3::new(0.1, 0.0, 0.0)).into(), p.rotation)).collect(),
+            gt.poses()
+                .iter()
+                .map(|p| {
+                    Isometry3::from_parts(
+                        (p.translation.vector + Vector3::new(0.1, 0.0, 0.0)).into(),
+                        p.rotation,
+                    )
+                })
+                .collect(),
         )
         .unwrap();
         for preset in [Preset::Evo, Preset::Tum] {
             // Without the offset, stamps are 0.05 s away from any ground-truth stamp: no pairs.
             let e = ate(&gt, &est, &opts(preset, Align::None)).unwrap_err();
             assert!(matches!(e, EvalError::TooFewPairs { found: 0, .. }), "{e}");
-            let r = ate(&gt, &est, &AteOptions { offset_s: -0.25, ..opts(preset, Align::None) }).unwrap();
+            let r = ate(
+                &gt,
+                &est,
+                &AteOptions {
+                    offset_s: -0.25,
+                    ..opts(preset, Align::None)
+                },
+            )
+            .unwrap();
             assert_eq!(r.trans_m.count, 50);
             assert_relative_eq!(r.trans_m.rmse, 0.1, epsilon = 1e-9);
         }
@@ -250,7 +296,10 @@ mod tests {
         let gt = helix(100, 0.1, 0.0); // 0.0 .. 9.9 s
         let est_full = helix(100, 0.1, 0.0);
         let est = Trajectory::from_parts(
-            est_full.stamps_s()[60..].iter().map(|t| t + 0.003).collect(),
+            est_full.stamps_s()[60..]
+                .iter()
+                .map(|t| t + 0.003)
+                .collect(),
             est_full.poses()[60..].to_vec(),
         )
         .unwrap(); // 6.003 .. 9.903 s
@@ -269,9 +318,18 @@ mod tests {
             .map(|i| Isometry3::translation(i as f64 * 0.1, 0.0, 0.0))
             .collect();
         let gt = Trajectory::from_parts(stamps.clone(), line.clone()).unwrap();
-        let est = Trajectory::from_parts(stamps, line.iter().map(|p| Isometry3::translation(0.0, 0.0, 1.0) * p).collect()).unwrap();
+        let est = Trajectory::from_parts(
+            stamps,
+            line.iter()
+                .map(|p| Isometry3::translation(0.0, 0.0, 1.0) * p)
+                .collect(),
+        )
+        .unwrap();
         let e = ate(&gt, &est, &opts(Preset::Evo, Align::Se3)).unwrap_err();
-        assert!(matches!(e, EvalError::DegenerateAlignment { rank: 1, .. }), "{e}");
+        assert!(
+            matches!(e, EvalError::DegenerateAlignment { rank: 1, .. }),
+            "{e}"
+        );
         let r = ate(&gt, &est, &opts(Preset::Tum, Align::Se3)).unwrap();
         assert_relative_eq!(r.trans_m.rmse, 0.0, epsilon = 1e-9);
         assert_eq!(r.warnings.len(), 1);
@@ -290,8 +348,14 @@ mod tests {
         assert_eq!(r.trans_m.count, 5);
         // Estimate shorter than gt but denser in one place: two estimate stamps nearest to the
         // same gt stamp are both kept by evo, only one by TUM's one-to-one rule.
-        let gt = Trajectory::from_parts(vec![0.0, 1.0, 2.0, 3.0, 4.0], helix(5, 1.0, 0.0).poses().to_vec()).unwrap();
-        let est = Trajectory::from_parts(vec![0.995, 1.004, 3.0], helix(3, 1.0, 0.0).poses().to_vec()).unwrap();
+        let gt = Trajectory::from_parts(
+            vec![0.0, 1.0, 2.0, 3.0, 4.0],
+            helix(5, 1.0, 0.0).poses().to_vec(),
+        )
+        .unwrap();
+        let est =
+            Trajectory::from_parts(vec![0.995, 1.004, 3.0], helix(3, 1.0, 0.0).poses().to_vec())
+                .unwrap();
         let evo = ate(&gt, &est, &opts(Preset::Evo, Align::None)).unwrap();
         assert_eq!(evo.trans_m.count, 3);
         let tum = ate(&gt, &est, &opts(Preset::Tum, Align::None)).unwrap();
@@ -301,9 +365,25 @@ mod tests {
     #[test]
     fn bad_options_are_rejected() {
         let gt = helix(10, 0.1, 0.0);
-        let e = ate(&gt, &gt, &AteOptions { t_max_diff_s: -1.0, ..opts(Preset::Evo, Align::None) }).unwrap_err();
+        let e = ate(
+            &gt,
+            &gt,
+            &AteOptions {
+                t_max_diff_s: -1.0,
+                ..opts(Preset::Evo, Align::None)
+            },
+        )
+        .unwrap_err();
         assert!(matches!(e, EvalError::InvalidOption(_)));
-        let e = ate(&gt, &gt, &AteOptions { offset_s: f64::NAN, ..opts(Preset::Evo, Align::None) }).unwrap_err();
+        let e = ate(
+            &gt,
+            &gt,
+            &AteOptions {
+                offset_s: f64::NAN,
+                ..opts(Preset::Evo, Align::None)
+            },
+        )
+        .unwrap_err();
         assert!(matches!(e, EvalError::InvalidOption(_)));
     }
 }

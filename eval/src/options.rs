@@ -147,6 +147,9 @@ mod tests {
         assert_eq!("m".parse::<DeltaUnit>().unwrap(), DeltaUnit::Metres);
         assert_eq!("meters".parse::<DeltaUnit>().unwrap(), DeltaUnit::Metres);
         let e = "affine".parse::<Align>().unwrap_err().to_string();
-        assert_eq!(e, "unknown alignment 'affine' (expected one of: se3, sim3, origin, none)");
+        assert_eq!(
+            e,
+            "unknown alignment 'affine' (expected one of: se3, sim3, origin, none)"
+        );
     }
 }

@@ -78,11 +78,16 @@ pub struct Chart {
 }
 
 /// Palette for series, colour-blind safe (Okabe-Ito).
-pub const PALETTE: [&str; 7] = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000"];
+pub const PALETTE: [&str; 7] = [
+    "#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#000000",
+];
 
 /// Escapes text for SVG/HTML.
 pub fn escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
 }
 
 /// "Nice" tick positions covering `[lo, hi]`, about `target` of them.
@@ -135,7 +140,11 @@ pub fn viridis(t: f64) -> (u8, u8, u8) {
         (170.0, 220.0, 50.0),
         (253.0, 231.0, 37.0),
     ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let x = t * 8.0;
     let i = (x.floor() as usize).min(7);
     let f = x - i as f64;
@@ -191,7 +200,11 @@ fn polyline(out: &mut String, f: &Frame, pts: &[(f64, f64)], color: &str, dashed
             let _ = write!(
                 out,
                 r#"<polyline fill="none" stroke="{color}" stroke-width="1.6"{} points="{}"/>"#,
-                if dashed { r#" stroke-dasharray="5,3""# } else { "" },
+                if dashed {
+                    r#" stroke-dasharray="5,3""#
+                } else {
+                    ""
+                },
                 d.join(" ")
             );
         }
@@ -210,7 +223,7 @@ fn polyline(out: &mut String, f: &Frame, pts: &[(f64, f64)], color: &str, dashed
 impl Chart {
     /// Draws the chart into the rectangle `(x, y, w, h)` (pixels) of an SVG being built.
     pub fn render_into(&self, out: &mut String, x: f64, y: f64, w: f64, h: f64) {
-        let colorbar_w = if self.colored.is_some() { 62.0 } else { 0.0 };
+        let colorbar_w = if self.colored.is_some() { 74.0 } else { 0.0 };
         let (ml, mr, mt, mb) = (62.0, 14.0 + colorbar_w, 30.0, 44.0);
         let mut f = Frame {
             x: x + ml,
@@ -235,7 +248,7 @@ impl Chart {
         }
         let (mut x0, mut x1) = padded(x0, x1);
         let (mut y0, mut y1) = padded(y0, y1);
-        if self.y_from_zero && y0 < 0.0 && pts.iter().all(|p| !(p.1 < 0.0)) {
+        if self.y_from_zero && y0 < 0.0 && pts.iter().all(|p| p.1.is_nan() || p.1 >= 0.0) {
             y0 = 0.0;
         }
         if self.equal_aspect {
@@ -318,7 +331,11 @@ impl Chart {
                     for &(px, py) in &s.points {
                         if px.is_finite() && py.is_finite() {
                             let (a, b) = f.px(px, py);
-                            let _ = write!(out, r#"<circle cx="{a:.1}" cy="{b:.1}" r="2.2" fill="{}"/>"#, s.color);
+                            let _ = write!(
+                                out,
+                                r#"<circle cx="{a:.1}" cy="{b:.1}" r="2.2" fill="{}"/>"#,
+                                s.color
+                            );
                         }
                     }
                 }
@@ -329,7 +346,9 @@ impl Chart {
             if let Some((vmin, vmax)) = extent(c.values.iter().copied()) {
                 let span = if vmax > vmin { vmax - vmin } else { 1.0 };
                 for (k, w2) in c.points.windows(2).enumerate() {
-                    let v = (c.values.get(k).copied().unwrap_or(vmin) + c.values.get(k + 1).copied().unwrap_or(vmin)) / 2.0;
+                    let v = (c.values.get(k).copied().unwrap_or(vmin)
+                        + c.values.get(k + 1).copied().unwrap_or(vmin))
+                        / 2.0;
                     let (r, g, b) = viridis((v - vmin) / span);
                     let ((a0, b0), (a1, b1)) = (f.px(w2[0].0, w2[0].1), f.px(w2[1].0, w2[1].1));
                     if [a0, b0, a1, b1].iter().all(|v| v.is_finite()) {
@@ -346,7 +365,12 @@ impl Chart {
 
         // Legend.
         let mut ly = f.y + 14.0;
-        let mut entries: Vec<(&str, String, Style)> = self.series.iter().filter(|s| !s.label.is_empty()).map(|s| (s.label.as_str(), s.color.clone(), s.style)).collect();
+        let mut entries: Vec<(&str, String, Style)> = self
+            .series
+            .iter()
+            .filter(|s| !s.label.is_empty())
+            .map(|s| (s.label.as_str(), s.color.clone(), s.style))
+            .collect();
         if let Some(c) = &self.colored {
             entries.push((c.label.as_str(), "rgb(33,144,141)".to_owned(), Style::Line));
         }
@@ -354,7 +378,12 @@ impl Chart {
             let lx = f.x + 8.0;
             match style {
                 Style::Markers => {
-                    let _ = write!(out, r#"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{color}"/>"#, lx + 9.0, ly - 4.0);
+                    let _ = write!(
+                        out,
+                        r#"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{color}"/>"#,
+                        lx + 9.0,
+                        ly - 4.0
+                    );
                 }
                 _ => {
                     let _ = write!(
@@ -363,11 +392,20 @@ impl Chart {
                         ly - 4.0,
                         lx + 18.0,
                         ly - 4.0,
-                        if style == Style::Dashed { r#" stroke-dasharray="5,3""# } else { "" }
+                        if style == Style::Dashed {
+                            r#" stroke-dasharray="5,3""#
+                        } else {
+                            ""
+                        }
                     );
                 }
             }
-            let _ = write!(out, r##"<text x="{:.1}" y="{ly:.1}" font-size="11" fill="#222">{}</text>"##, lx + 24.0, escape(label));
+            let _ = write!(
+                out,
+                r##"<text x="{:.1}" y="{ly:.1}" font-size="11" fill="#222">{}</text>"##,
+                lx + 24.0,
+                escape(label)
+            );
             ly += 15.0;
         }
 
@@ -386,16 +424,26 @@ impl Chart {
                     bh / steps as f64 + 0.5
                 );
             }
-            let _ = write!(out, r##"<rect x="{bx:.1}" y="{:.1}" width="{bw:.1}" height="{bh:.1}" fill="none" stroke="#888"/>"##, f.y);
+            let _ = write!(
+                out,
+                r##"<rect x="{bx:.1}" y="{:.1}" width="{bw:.1}" height="{bh:.1}" fill="none" stroke="#888"/>"##,
+                f.y
+            );
             let (vt, vs) = nice_ticks(vmin, vmax.max(vmin + 1e-12), 4);
             for t in vt {
                 let py = f.y + bh - (t - vmin) / (vmax - vmin).max(1e-12) * bh;
-                let _ = write!(out, r##"<text x="{:.1}" y="{:.1}" font-size="10" fill="#333">{}</text>"##, bx + bw + 3.0, py + 3.5, tick_label(t, vs));
+                let _ = write!(
+                    out,
+                    r##"<text x="{:.1}" y="{:.1}" font-size="10" fill="#333">{}</text>"##,
+                    bx + bw + 3.0,
+                    py + 3.5,
+                    tick_label(t, vs)
+                );
             }
             let _ = write!(
                 out,
                 r##"<text transform="translate({:.1},{:.1}) rotate(-90)" font-size="11" text-anchor="middle" fill="#222">{}</text>"##,
-                bx + bw + 44.0,
+                bx + bw + 40.0,
                 f.y + bh / 2.0,
                 escape(&c.label)
             );
@@ -417,7 +465,13 @@ pub fn render(charts: &[Chart], columns: usize, panel_w: f64, panel_h: f64) -> S
     out.push_str(r##"<rect width="100%" height="100%" fill="#fafafa"/>"##);
     for (k, c) in charts.iter().enumerate() {
         let (col, row) = (k % columns, k / columns);
-        c.render_into(&mut out, col as f64 * panel_w, row as f64 * panel_h, panel_w, panel_h);
+        c.render_into(
+            &mut out,
+            col as f64 * panel_w,
+            row as f64 * panel_h,
+            panel_w,
+            panel_h,
+        );
     }
     out.push_str("</svg>\n");
     out
@@ -444,8 +498,16 @@ mod tests {
             title: "T <1>".into(),
             x_label: "x (m)".into(),
             y_label: "y (m)".into(),
-            series: vec![Series::line("gt", PALETTE[0], vec![(0.0, 0.0), (1.0, 1.0), (f64::NAN, 0.0), (2.0, 0.0)])],
-            colored: Some(ColoredPath { label: "error (m)".into(), points: vec![(0.0, 0.1), (1.0, 1.1), (2.0, 0.1)], values: vec![0.0, 0.5, 1.0] }),
+            series: vec![Series::line(
+                "gt",
+                PALETTE[0],
+                vec![(0.0, 0.0), (1.0, 1.0), (f64::NAN, 0.0), (2.0, 0.0)],
+            )],
+            colored: Some(ColoredPath {
+                label: "error (m)".into(),
+                points: vec![(0.0, 0.1), (1.0, 1.1), (2.0, 0.1)],
+                values: vec![0.0, 0.5, 1.0],
+            }),
             equal_aspect: true,
             y_from_zero: false,
         };

@@ -117,10 +117,22 @@ impl Report {
                 }
                 Block::Table { headers, rows } => {
                     let cell = |s: &String| s.replace('|', "\\|");
-                    let _ = writeln!(md, "| {} |", headers.iter().map(cell).collect::<Vec<_>>().join(" | "));
-                    let _ = writeln!(md, "|{}", headers.iter().map(|_| "---|").collect::<String>());
+                    let _ = writeln!(
+                        md,
+                        "| {} |",
+                        headers.iter().map(cell).collect::<Vec<_>>().join(" | ")
+                    );
+                    let _ = writeln!(
+                        md,
+                        "|{}",
+                        headers.iter().map(|_| "---|").collect::<String>()
+                    );
                     for r in rows {
-                        let _ = writeln!(md, "| {} |", r.iter().map(cell).collect::<Vec<_>>().join(" | "));
+                        let _ = writeln!(
+                            md,
+                            "| {} |",
+                            r.iter().map(cell).collect::<Vec<_>>().join(" | ")
+                        );
                     }
                     md.push('\n');
                 }
@@ -176,7 +188,11 @@ impl Report {
                     h.push_str("</table>\n");
                 }
                 Block::Figure { svg, caption, .. } => {
-                    let _ = writeln!(h, "<figure>{svg}<figcaption>{}</figcaption></figure>", escape(caption));
+                    let _ = writeln!(
+                        h,
+                        "<figure>{svg}<figcaption>{}</figcaption></figure>",
+                        escape(caption)
+                    );
                 }
                 Block::Image { file, caption } => {
                     let _ = writeln!(
@@ -207,7 +223,10 @@ impl Report {
                 written.push(p);
             }
         }
-        for (name, text) in [("report.md", self.to_markdown()), ("report.html", self.to_html())] {
+        for (name, text) in [
+            ("report.md", self.to_markdown()),
+            ("report.html", self.to_html()),
+        ] {
             let p = dir.join(name);
             write_atomic(&p, text.as_bytes())?;
             written.push(p);

@@ -114,7 +114,10 @@ fn validate(o: &RpeOptions) -> Result<(), EvalError> {
         )));
     }
     if !o.offset_s.is_finite() {
-        return Err(EvalError::InvalidOption(format!("--offset must be finite, got {}", o.offset_s)));
+        return Err(EvalError::InvalidOption(format!(
+            "--offset must be finite, got {}",
+            o.offset_s
+        )));
     }
     if !(o.rel_delta_tol.is_finite() && o.rel_delta_tol >= 0.0) {
         return Err(EvalError::InvalidOption(format!(
@@ -133,7 +136,11 @@ fn validate(o: &RpeOptions) -> Result<(), EvalError> {
 }
 
 /// Computes the RPE of `est` against `gt`.
-pub fn rpe(gt: &Trajectory, est: &Trajectory, options: &RpeOptions) -> Result<RpeResult, EvalError> {
+pub fn rpe(
+    gt: &Trajectory,
+    est: &Trajectory,
+    options: &RpeOptions,
+) -> Result<RpeResult, EvalError> {
     validate(options)?;
     match options.preset {
         Preset::Evo => rpe_evo(gt, est, options),
@@ -183,9 +190,20 @@ fn finish(
 
 fn rpe_evo(gt: &Trajectory, est: &Trajectory, o: &RpeOptions) -> Result<RpeResult, EvalError> {
     let pairs = associate(gt, est, o.preset, o.t_max_diff_s, o.offset_s);
-    let needed = if matches!(o.align, Align::Se3 | Align::Sim3) { 3 } else { 2 };
+    let needed = if matches!(o.align, Align::Se3 | Align::Sim3) {
+        3
+    } else {
+        2
+    };
     if pairs.len() < needed {
-        return Err(too_few_pairs(gt, est, pairs.len(), needed, o.t_max_diff_s, o.offset_s));
+        return Err(too_few_pairs(
+            gt,
+            est,
+            pairs.len(),
+            needed,
+            o.t_max_diff_s,
+            o.offset_s,
+        ));
     }
     let (q, p_raw, _) = gather(gt, est, &pairs);
     let est_stamps: Vec<f64> = pairs
@@ -197,7 +215,8 @@ fn rpe_evo(gt: &Trajectory, est: &Trajectory, o: &RpeOptions) -> Result<RpeResul
     let ids = evo_id_pairs(&p, &est_stamps, o);
     let mut out = Vec::with_capacity(ids.len());
     for (i, j) in ids {
-        let (Some(qi), Some(qj), Some(pi), Some(pj)) = (q.get(i), q.get(j), p.get(i), p.get(j)) else {
+        let (Some(qi), Some(qj), Some(pi), Some(pj)) = (q.get(i), q.get(j), p.get(i), p.get(j))
+        else {
             continue;
         };
         let e = (qi.inverse() * qj).inverse() * (pi.inverse() * pj);
@@ -334,17 +353,30 @@ fn rpe_tum(gt: &Trajectory, est: &Trajectory, o: &RpeOptions) -> Result<RpeResul
     // through the nearest ground-truth stamp.
     let mut returned = std::collections::BTreeSet::new();
     for &t in ts_est {
-        let g = ts_gt.get(find_closest_index(ts_gt, t + o.offset_s)).copied().unwrap_or(f64::NAN);
+        let g = ts_gt
+            .get(find_closest_index(ts_gt, t + o.offset_s))
+            .copied()
+            .unwrap_or(f64::NAN);
         returned.insert(find_closest_index(ts_est, g - o.offset_s));
     }
     if returned.len() < 2 {
-        return Err(too_few_pairs(gt, est, returned.len(), 2, 2.0 * median_interval(ts_gt), o.offset_s));
+        return Err(too_few_pairs(
+            gt,
+            est,
+            returned.len(),
+            2,
+            2.0 * median_interval(ts_gt),
+            o.offset_s,
+        ));
     }
     // Alignment is not part of the TUM tool; apply it if asked (scale matters for Sim(3)).
     let alignment = if o.align == Align::None {
         Alignment::identity()
     } else {
-        warnings.push(format!("the TUM RPE tool does not align; --align {} departs from it", o.align));
+        warnings.push(format!(
+            "the TUM RPE tool does not align; --align {} departs from it",
+            o.align
+        ));
         let pairs = associate(gt, est, Preset::Tum, o.t_max_diff_s, o.offset_s);
         let (q, p, _) = gather(gt, est, &pairs);
         let (a, mut w) = compute_alignment(&q, &p, o.align, o.preset)?;
@@ -375,16 +407,22 @@ fn rpe_tum(gt: &Trajectory, est: &Trajectory, o: &RpeOptions) -> Result<RpeResul
     let gt_max_time_difference = 2.0 * median_interval(ts_gt);
     let mut out = Vec::with_capacity(ids.len());
     for (i, j) in ids {
-        let (Some(&te0), Some(&te1)) = (ts_est.get(i), ts_est.get(j)) else { continue };
+        let (Some(&te0), Some(&te1)) = (ts_est.get(i), ts_est.get(j)) else {
+            continue;
+        };
         let g0 = find_closest_index(ts_gt, te0 + o.offset_s);
         let g1 = find_closest_index(ts_gt, te1 + o.offset_s);
-        let (Some(&tg0), Some(&tg1)) = (ts_gt.get(g0), ts_gt.get(g1)) else { continue };
+        let (Some(&tg0), Some(&tg1)) = (ts_gt.get(g0), ts_gt.get(g1)) else {
+            continue;
+        };
         if (tg0 - (te0 + o.offset_s)).abs() > gt_max_time_difference
             || (tg1 - (te1 + o.offset_s)).abs() > gt_max_time_difference
         {
             continue;
         }
-        let (Some(p0), Some(p1), Some(q0), Some(q1)) = (p.get(i), p.get(j), gt.poses().get(g0), gt.poses().get(g1)) else {
+        let (Some(p0), Some(p1), Some(q0), Some(q1)) =
+            (p.get(i), p.get(j), gt.poses().get(g0), gt.poses().get(g1))
+        else {
             continue;
         };
         let e = (p1.inverse() * p0).inverse() * (q1.inverse() * q0);
@@ -441,9 +479,26 @@ mod tests {
     fn identical_trajectories_have_zero_rpe_in_every_mode() {
         let t = straight(50, 0.05, 0.1);
         for preset in [Preset::Evo, Preset::Tum] {
-            for (delta, unit) in [(1.0, DeltaUnit::Frames), (3.0, DeltaUnit::Frames), (0.5, DeltaUnit::Seconds), (0.2, DeltaUnit::Metres)] {
-                let r = rpe(&t, &t, &RpeOptions { delta, unit, ..RpeOptions::for_preset(preset) }).unwrap();
-                assert!(r.trans_m.max < 1e-9 && r.rot_deg.max < 1e-5, "{preset} {delta} {unit}");
+            for (delta, unit) in [
+                (1.0, DeltaUnit::Frames),
+                (3.0, DeltaUnit::Frames),
+                (0.5, DeltaUnit::Seconds),
+                (0.2, DeltaUnit::Metres),
+            ] {
+                let r = rpe(
+                    &t,
+                    &t,
+                    &RpeOptions {
+                        delta,
+                        unit,
+                        ..RpeOptions::for_preset(preset)
+                    },
+                )
+                .unwrap();
+                assert!(
+                    r.trans_m.max < 1e-9 && r.rot_deg.max < 1e-5,
+                    "{preset} {delta} {unit}"
+                );
             }
         }
     }
@@ -454,11 +509,14 @@ mod tests {
         let gt = straight(30, 0.05, 0.1);
         let est = Trajectory::from_parts(
             gt.stamps_s().to_vec(),
-            gt.poses().iter().map(|p| {
-                let mut q = *p;
-                q.translation.vector.x *= 1.1;
-                q
-            }).collect(),
+            gt.poses()
+                .iter()
+                .map(|p| {
+                    let mut q = *p;
+                    q.translation.vector.x *= 1.1;
+                    q
+                })
+                .collect(),
         )
         .unwrap();
         let r = rpe(&gt, &est, &RpeOptions::for_preset(Preset::Evo)).unwrap();
@@ -467,15 +525,40 @@ mod tests {
         assert_relative_eq!(r.trans_m.mean, 0.005, epsilon = 1e-12);
         assert_relative_eq!(r.rot_deg.max, 0.0, epsilon = 1e-9);
         // Consecutive pairs every 5 frames see 5 times the error.
-        let r = rpe(&gt, &est, &RpeOptions { delta: 5.0, ..RpeOptions::for_preset(Preset::Evo) }).unwrap();
+        let r = rpe(
+            &gt,
+            &est,
+            &RpeOptions {
+                delta: 5.0,
+                ..RpeOptions::for_preset(Preset::Evo)
+            },
+        )
+        .unwrap();
         assert_eq!(r.trans_m.count, 5);
         assert_relative_eq!(r.trans_m.mean, 0.025, epsilon = 1e-12);
         // All pairs 5 frames apart.
-        let r = rpe(&gt, &est, &RpeOptions { delta: 5.0, all_pairs: true, ..RpeOptions::for_preset(Preset::Evo) }).unwrap();
+        let r = rpe(
+            &gt,
+            &est,
+            &RpeOptions {
+                delta: 5.0,
+                all_pairs: true,
+                ..RpeOptions::for_preset(Preset::Evo)
+            },
+        )
+        .unwrap();
         assert_eq!(r.trans_m.count, 25);
         // Sim(3) alignment removes the scale error only partly (it is anisotropic); SE(3)
         // alignment changes nothing.
-        let se3 = rpe(&gt, &est, &RpeOptions { align: Align::Se3, ..RpeOptions::for_preset(Preset::Evo) }).unwrap();
+        let se3 = rpe(
+            &gt,
+            &est,
+            &RpeOptions {
+                align: Align::Se3,
+                ..RpeOptions::for_preset(Preset::Evo)
+            },
+        )
+        .unwrap();
         assert_relative_eq!(se3.trans_m.mean, 0.005, epsilon = 1e-9);
     }
 
@@ -485,7 +568,10 @@ mod tests {
         let gt = straight(20, 0.05, 0.1);
         let gt = Trajectory::from_parts(
             gt.stamps_s().to_vec(),
-            gt.poses().iter().map(|p| Isometry3::from_parts(p.translation, UnitQuaternion::identity())).collect(),
+            gt.poses()
+                .iter()
+                .map(|p| Isometry3::from_parts(p.translation, UnitQuaternion::identity()))
+                .collect(),
         )
         .unwrap();
         let est = Trajectory::from_parts(
@@ -493,21 +579,48 @@ mod tests {
             gt.poses()
                 .iter()
                 .enumerate()
-                .map(|(i, p)| Isometry3::from_parts(p.translation, UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.01 * i as f64)))
+                .map(|(i, p)| {
+                    Isometry3::from_parts(
+                        p.translation,
+                        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 0.01 * i as f64),
+                    )
+                })
                 .collect(),
         )
         .unwrap();
         for preset in [Preset::Evo, Preset::Tum] {
-            let r = rpe(&gt, &est, &RpeOptions { delta: 1.0, unit: DeltaUnit::Frames, ..RpeOptions::for_preset(preset) }).unwrap();
+            let r = rpe(
+                &gt,
+                &est,
+                &RpeOptions {
+                    delta: 1.0,
+                    unit: DeltaUnit::Frames,
+                    ..RpeOptions::for_preset(preset)
+                },
+            )
+            .unwrap();
             assert_relative_eq!(r.rot_deg.median, 0.01f64.to_degrees(), epsilon = 1e-6);
-            assert_relative_eq!(r.rot_chordal.median, 2.0 * 2f64.sqrt() * 0.005f64.sin(), epsilon = 1e-9);
+            assert_relative_eq!(
+                r.rot_chordal.median,
+                2.0 * 2f64.sqrt() * 0.005f64.sin(),
+                epsilon = 1e-9
+            );
         }
     }
 
     #[test]
     fn tum_drops_pairs_ending_on_the_last_pose_and_far_gt() {
         let gt = straight(10, 0.05, 0.1);
-        let r = rpe(&gt, &gt, &RpeOptions { delta: 1.0, unit: DeltaUnit::Frames, ..RpeOptions::for_preset(Preset::Tum) }).unwrap();
+        let r = rpe(
+            &gt,
+            &gt,
+            &RpeOptions {
+                delta: 1.0,
+                unit: DeltaUnit::Frames,
+                ..RpeOptions::for_preset(Preset::Tum)
+            },
+        )
+        .unwrap();
         // Pairs (i, i+1) for i = 0..7: the pair (8, 9) ends on the last pose and (9, 9) too,
         // and the tool drops both.
         assert_eq!(r.trans_m.count, 8);
@@ -520,14 +633,40 @@ mod tests {
         for bad in [
             RpeOptions { delta: 0.0, ..base },
             RpeOptions { delta: 1.5, ..base },
-            RpeOptions { rel_delta_tol: -1.0, ..base },
-            RpeOptions { all_pairs: true, ..RpeOptions::for_preset(Preset::Tum) },
+            RpeOptions {
+                rel_delta_tol: -1.0,
+                ..base
+            },
+            RpeOptions {
+                all_pairs: true,
+                ..RpeOptions::for_preset(Preset::Tum)
+            },
         ] {
-            assert!(matches!(rpe(&t, &t, &bad), Err(EvalError::InvalidOption(_))), "{bad:?}");
+            assert!(
+                matches!(rpe(&t, &t, &bad), Err(EvalError::InvalidOption(_))),
+                "{bad:?}"
+            );
         }
-        let e = rpe(&t, &t, &RpeOptions { delta: 100.0, ..base }).unwrap_err();
+        let e = rpe(
+            &t,
+            &t,
+            &RpeOptions {
+                delta: 100.0,
+                ..base
+            },
+        )
+        .unwrap_err();
         assert!(matches!(e, EvalError::NoRelativePairs { .. }), "{e}");
-        let e = rpe(&t, &t, &RpeOptions { delta: 100.0, unit: DeltaUnit::Metres, ..base }).unwrap_err();
+        let e = rpe(
+            &t,
+            &t,
+            &RpeOptions {
+                delta: 100.0,
+                unit: DeltaUnit::Metres,
+                ..base
+            },
+        )
+        .unwrap_err();
         assert!(matches!(e, EvalError::NoRelativePairs { .. }), "{e}");
     }
 }

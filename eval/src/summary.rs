@@ -24,7 +24,10 @@ fn stats_table(columns: &[(&str, &Statistics)]) -> String {
         let _ = write!(t, "{name:>18}");
     }
     t.push('\n');
-    for (k, row) in ["rmse", "mean", "median", "std", "min", "max", "sse"].iter().enumerate() {
+    for (k, row) in ["rmse", "mean", "median", "std", "min", "max", "sse"]
+        .iter()
+        .enumerate()
+    {
         let _ = write!(t, "{row:>8}");
         for (_, s) in columns {
             let v = s.rows().get(k).map_or(f64::NAN, |r| r.1);
@@ -67,7 +70,10 @@ impl AteResult {
                 String::new()
             }
         );
-        t.push_str(&stats_table(&[("translation (m)", &self.trans_m), ("rotation (deg)", &self.rot_deg)]));
+        t.push_str(&stats_table(&[
+            ("translation (m)", &self.trans_m),
+            ("rotation (deg)", &self.rot_deg),
+        ]));
         t
     }
 
@@ -101,14 +107,21 @@ impl AteResult {
                 Series::line(
                     "error",
                     PALETTE[0],
-                    self.stamps_s.iter().zip(&self.errors_m).map(|(t, e)| (t - t0, *e)).collect(),
+                    self.stamps_s
+                        .iter()
+                        .zip(&self.errors_m)
+                        .map(|(t, e)| (t - t0, *e))
+                        .collect(),
                 ),
                 Series::line(
                     "rmse",
                     PALETTE[1],
                     vec![
                         (0.0, self.trans_m.rmse),
-                        (self.stamps_s.last().map_or(0.0, |t| t - t0), self.trans_m.rmse),
+                        (
+                            self.stamps_s.last().map_or(0.0, |t| t - t0),
+                            self.trans_m.rmse,
+                        ),
                     ],
                 )
                 .with_style(Style::Dashed),
@@ -128,9 +141,17 @@ impl AteResult {
             "Preset {} (association within {} s{}), alignment {}{}; {} associated pose pairs.",
             o.preset,
             o.t_max_diff_s,
-            if o.offset_s != 0.0 { format!(", offset {} s", o.offset_s) } else { String::new() },
+            if o.offset_s != 0.0 {
+                format!(", offset {} s", o.offset_s)
+            } else {
+                String::new()
+            },
             o.align,
-            if o.align == crate::options::Align::Sim3 { format!(" (scale {:.6})", self.alignment.scale) } else { String::new() },
+            if o.align == crate::options::Align::Sim3 {
+                format!(" (scale {:.6})", self.alignment.scale)
+            } else {
+                String::new()
+            },
             self.trans_m.count
         ));
         report.table(
@@ -200,20 +221,35 @@ impl RpeResult {
     /// Two panels: translation and rotation error of each pair over time.
     pub fn chart_svg(&self) -> String {
         let t0 = self.pairs.first().map_or(0.0, |p| p.t_s);
-        let panel = |title: String, y_label: &str, f: fn(&crate::rpe::RpePair) -> f64, color: &str| Chart {
-            title,
-            x_label: "time of the pair's first pose (s)".into(),
-            y_label: y_label.into(),
-            series: vec![Series::line("", color, self.pairs.iter().map(|p| (p.t_s - t0, f(p))).collect())],
-            colored: None,
-            equal_aspect: false,
-            y_from_zero: true,
-        };
+        let panel =
+            |title: String, y_label: &str, f: fn(&crate::rpe::RpePair) -> f64, color: &str| Chart {
+                title,
+                x_label: "time of the pair's first pose (s)".into(),
+                y_label: y_label.into(),
+                series: vec![Series::line(
+                    "",
+                    color,
+                    self.pairs.iter().map(|p| (p.t_s - t0, f(p))).collect(),
+                )],
+                colored: None,
+                equal_aspect: false,
+                y_from_zero: true,
+            };
         let per = format!("per {} {}", self.options.delta, self.options.unit);
         render(
             &[
-                panel(format!("RPE translation (rmse {:.4} m)", self.trans_m.rmse), &format!("translation error (m) {per}"), |p| p.trans_m, PALETTE[0]),
-                panel(format!("RPE rotation (rmse {:.3} deg)", self.rot_deg.rmse), &format!("rotation error (deg) {per}"), |p| p.rot_deg, PALETTE[1]),
+                panel(
+                    format!("RPE translation (rmse {:.4} m)", self.trans_m.rmse),
+                    &format!("translation error (m) {per}"),
+                    |p| p.trans_m,
+                    PALETTE[0],
+                ),
+                panel(
+                    format!("RPE rotation (rmse {:.3} deg)", self.rot_deg.rmse),
+                    &format!("rotation error (deg) {per}"),
+                    |p| p.rot_deg,
+                    PALETTE[1],
+                ),
             ],
             2,
             560.0,
@@ -235,18 +271,34 @@ impl RpeResult {
             self.trans_m.count
         ));
         report.table(
-            &["statistic", "translation (m)", "rotation (deg)", "rotation (chordal)"],
+            &[
+                "statistic",
+                "translation (m)",
+                "rotation (deg)",
+                "rotation (chordal)",
+            ],
             self.trans_m
                 .rows()
                 .iter()
                 .zip(self.rot_deg.rows())
                 .zip(self.rot_chordal.rows())
-                .map(|(((k, a), (_, b)), (_, c))| vec![(*k).to_owned(), format!("{a:.6}"), format!("{b:.6}"), format!("{c:.6}")])
+                .map(|(((k, a), (_, b)), (_, c))| {
+                    vec![
+                        (*k).to_owned(),
+                        format!("{a:.6}"),
+                        format!("{b:.6}"),
+                        format!("{c:.6}"),
+                    ]
+                })
                 .collect(),
         );
         for w in &self.warnings {
             report.paragraph(format!("Warning: {w}"));
         }
-        report.figure(figure_name, self.chart_svg(), "Translation (left) and rotation (right) error of each pose pair over time.");
+        report.figure(
+            figure_name,
+            self.chart_svg(),
+            "Translation (left) and rotation (right) error of each pose pair over time.",
+        );
     }
 }

@@ -81,19 +81,35 @@ fn make_pair(n: usize, seed: u64) -> Result<(Trajectory, Trajectory)> {
     for i in 0..n {
         let t = 1_700_000_000.0 + i as f64 * 0.01;
         let s = i as f64 * 0.01;
-        let pos = Vector3::new(3.0 * (0.05 * s).sin(), 2.0 * (0.031 * s).cos(), 0.4 + 0.2 * (0.2 * s).sin());
-        let rot = UnitQuaternion::from_euler_angles(0.05 * (0.7 * s).sin(), 0.1 * (0.3 * s).cos(), 0.05 * s);
+        let pos = Vector3::new(
+            3.0 * (0.05 * s).sin(),
+            2.0 * (0.031 * s).cos(),
+            0.4 + 0.2 * (0.2 * s).sin(),
+        );
+        let rot = UnitQuaternion::from_euler_angles(
+            0.05 * (0.7 * s).sin(),
+            0.1 * (0.3 * s).cos(),
+            0.05 * s,
+        );
         let gt = Isometry3::from_parts(pos.into(), rot);
         drift += Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 2e-4;
         let noise = Vector3::new(rng.symmetric(), rng.symmetric(), rng.symmetric()) * 3e-3;
-        let rot_noise = UnitQuaternion::from_euler_angles(rng.symmetric() * 2e-3, rng.symmetric() * 2e-3, rng.symmetric() * 2e-3);
-        let est = world_est_from_gt * Isometry3::from_parts((pos + drift + noise).into(), rot * rot_noise);
+        let rot_noise = UnitQuaternion::from_euler_angles(
+            rng.symmetric() * 2e-3,
+            rng.symmetric() * 2e-3,
+            rng.symmetric() * 2e-3,
+        );
+        let est = world_est_from_gt
+            * Isometry3::from_parts((pos + drift + noise).into(), rot * rot_noise);
         gt_t.push(t);
         gt_p.push(gt);
         est_t.push(t + rng.symmetric() * 0.002);
         est_p.push(est);
     }
-    Ok((Trajectory::from_parts(gt_t, gt_p)?, Trajectory::from_parts(est_t, est_p)?))
+    Ok((
+        Trajectory::from_parts(gt_t, gt_p)?,
+        Trajectory::from_parts(est_t, est_p)?,
+    ))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -123,7 +139,10 @@ fn evo_timing(python: &Path, gt: &Path, est: &Path, runs: usize) -> Result<serde
         bail!(
             "evo benchmark failed ({}): {}",
             out.status,
-            String::from_utf8_lossy(&out.stderr).lines().last().unwrap_or("")
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
         );
     }
     let text = String::from_utf8_lossy(&out.stdout);
@@ -151,7 +170,10 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
     write_tum_trajectory(&gt_path, &gt)?;
     write_tum_trajectory(&est_path, &est)?;
 
-    let ate_opts = AteOptions { align: Align::Se3, ..AteOptions::for_preset(Preset::Evo) };
+    let ate_opts = AteOptions {
+        align: Align::Se3,
+        ..AteOptions::for_preset(Preset::Evo)
+    };
     let rpe_opts = RpeOptions::for_preset(Preset::Evo);
     let (mut load, mut ate_t, mut rpe_t) = (Vec::new(), Vec::new(), Vec::new());
     let (mut ate_rmse, mut rpe_rmse) = (f64::NAN, f64::NAN);
@@ -176,7 +198,10 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
         "rpe_rmse": rpe_rmse,
         "runs": a.runs,
     });
-    let python = a.evo_python.clone().or_else(|| std::env::var_os("STRIDE_EVO_PYTHON").map(PathBuf::from));
+    let python = a
+        .evo_python
+        .clone()
+        .or_else(|| std::env::var_os("STRIDE_EVO_PYTHON").map(PathBuf::from));
     let evo = match &python {
         Some(p) => Some(evo_timing(p, &gt_path, &est_path, a.evo_runs)?),
         None => None,
@@ -186,19 +211,39 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
         println!("{}", json!({"poses": a.poses, "stride": ours, "evo": evo}));
         return Ok(());
     }
-    println!("ATE (SE(3), evo preset) + RPE (1 frame) on {} poses per trajectory; medians", a.poses);
-    println!("{:<22}{:>14}{:>14}{:>14}", "", "stride (ms)", "evo (ms)", "evo / stride");
-    for (label, key) in [("load both files", "load_s"), ("ATE", "ate_s"), ("RPE", "rpe_s")] {
+    println!(
+        "ATE (SE(3), evo preset) + RPE (1 frame) on {} poses per trajectory; medians",
+        a.poses
+    );
+    println!(
+        "{:<22}{:>14}{:>14}{:>14}",
+        "", "stride (ms)", "evo (ms)", "evo / stride"
+    );
+    for (label, key) in [
+        ("load both files", "load_s"),
+        ("ATE", "ate_s"),
+        ("RPE", "rpe_s"),
+    ] {
         let s = f(&ours, key) * 1e3;
         match &evo {
-            Some(e) => println!("{label:<22}{s:>14.2}{:>14.1}{:>14.1}", f(e, key) * 1e3, f(e, key) * 1e3 / s),
+            Some(e) => println!(
+                "{label:<22}{s:>14.2}{:>14.1}{:>14.1}",
+                f(e, key) * 1e3,
+                f(e, key) * 1e3 / s
+            ),
             None => println!("{label:<22}{s:>14.2}{:>14}{:>14}", "-", "-"),
         }
     }
     let total = |v: &serde_json::Value| f(v, "load_s") + f(v, "ate_s") + f(v, "rpe_s");
     match &evo {
         Some(e) => {
-            println!("{:<22}{:>14.2}{:>14.1}{:>14.1}", "total", total(&ours) * 1e3, total(e) * 1e3, total(e) / total(&ours));
+            println!(
+                "{:<22}{:>14.2}{:>14.1}{:>14.1}",
+                "total",
+                total(&ours) * 1e3,
+                total(e) * 1e3,
+                total(e) / total(&ours)
+            );
             println!(
                 "results agree: ATE rmse {:.9} vs {:.9} m, RPE rmse {:.9} vs {:.9} m",
                 ate_rmse,
@@ -207,7 +252,11 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
                 f(e, "rpe_rmse")
             );
         }
-        None => println!("{:<22}{:>14.2}   (pass --evo-python to time evo on the same files)", "total", total(&ours) * 1e3),
+        None => println!(
+            "{:<22}{:>14.2}   (pass --evo-python to time evo on the same files)",
+            "total",
+            total(&ours) * 1e3
+        ),
     }
     Ok(())
 }

@@ -34,10 +34,15 @@ pub struct CommonArgs {
     #[arg(long)]
     align: Option<Align>,
     /// Association window in seconds [default: evo 0.01, tum 0.02].
-    #[arg(long, value_name = "S")]
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
     t_max_diff: Option<f64>,
     /// Time offset in seconds added to the estimate's stamps before association.
-    #[arg(long, value_name = "S", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "S",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     offset: f64,
     /// Print exactly one JSON object instead of the table.
     #[arg(long)]
@@ -61,7 +66,7 @@ pub struct RpeArgs {
     #[command(flatten)]
     common: CommonArgs,
     /// Distance between the poses of a pair [default: evo 1 frame, tum 1 second].
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     delta: Option<f64>,
     /// Unit of --delta: frames, seconds or metres.
     #[arg(long)]
@@ -70,7 +75,7 @@ pub struct RpeArgs {
     #[arg(long)]
     all_pairs: bool,
     /// Relative tolerance on delta (metres/seconds) in --all-pairs mode.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     delta_tol: f64,
 }
 
@@ -81,7 +86,12 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
     }
 }
 
-fn load(c: &CommonArgs) -> Result<(stride_core::trajectory::Trajectory, stride_core::trajectory::Trajectory)> {
+fn load(
+    c: &CommonArgs,
+) -> Result<(
+    stride_core::trajectory::Trajectory,
+    stride_core::trajectory::Trajectory,
+)> {
     let gt = read_tum_trajectory(&c.gt).context("reading the ground truth (--gt)")?;
     let est = read_tum_trajectory(&c.est).context("reading the estimate (--est)")?;
     Ok((gt, est))
@@ -105,7 +115,8 @@ fn emit(
         print!("{table}");
     }
     if let Some(p) = &c.plot {
-        write_atomic(p, svg().as_bytes()).with_context(|| format!("writing the plot {}", p.display()))?;
+        write_atomic(p, svg().as_bytes())
+            .with_context(|| format!("writing the plot {}", p.display()))?;
         tracing::info!("plot written to {}", p.display());
     }
     if let Some(dir) = &c.report {
@@ -118,7 +129,9 @@ fn emit(
         fill_report(&mut report);
         report.code(std::env::args().collect::<Vec<_>>().join(" "));
         write_report_json(dir, &json)?;
-        report.write(dir).with_context(|| format!("writing the report into {}", dir.display()))?;
+        report
+            .write(dir)
+            .with_context(|| format!("writing the report into {}", dir.display()))?;
         tracing::info!("report written to {}", dir.join("report.html").display());
     }
     Ok(())

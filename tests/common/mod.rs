@@ -1,0 +1,76 @@
+//! Helpers shared by the end-to-end tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+/// A path inside the shared data (`$STRIDE_DATA` or `../shared/data`). Missing data fails the
+/// test under `CI=true` and skips it (returns `None`) elsewhere.
+pub fn data(relative: &str) -> Option<PathBuf> {
+    match stride_datasets::data_root::shared_data_path(relative) {
+        Some(p) => Some(p),
+        None => {
+            let ci = std::env::var("CI")
+                .map(|v| v == "true" || v == "1")
+                .unwrap_or(false);
+            assert!(
+                !ci,
+                "shared data '{relative}' is missing (looked in $STRIDE_DATA or ../shared/data); \
+                 under CI=true this is a failure"
+            );
+            eprintln!("SKIP: shared data '{relative}' not found");
+            None
+        }
+    }
+}
+
+/// The `stride` binary built for these tests.
+pub fn stride() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_stride"))
+}
+
+/// Runs `stride` with arguments and returns its output.
+pub fn run(args: &[&str]) -> Output {
+    stride().args(args).output().expect("stride runs")
+}
+
+/// Runs `stride ... --json` and parses the single JSON object it prints.
+pub fn run_json(args: &[&str]) -> serde_json::Value {
+    let out = run(args);
+    assert!(
+        out.status.success(),
+        "stride {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).expect("utf-8");
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    let line = lines.next().expect("one line of JSON");
+    assert!(
+        lines.next().is_none(),
+        "more than one line on stdout: {text}"
+    );
+    serde_json::from_str(line).expect("valid JSON")
+}
+
+/// A number from a JSON object.
+pub fn num(v: &serde_json::Value, key: &str) -> f64 {
+    v.get(key)
+        .and_then(|x| x.as_f64())
+        .unwrap_or_else(|| panic!("no number '{key}' in {v}"))
+}
+
+/// The python of a venv with evo: `$STRIDE_EVO_PYTHON`, else the peers venv of
+/// ../shared/tools/peers/README.md if it exists. `None` when evo is not installed.
+pub fn evo_python() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("STRIDE_EVO_PYTHON") {
+        return Some(PathBuf::from(p));
+    }
+    let venv = PathBuf::from("/tmp/peers-venv/bin/python");
+    let ok = venv.is_file()
+        && Command::new(&venv)
+            .args(["-c", "import evo"])
+            .output()
+            .map(|o| o.status.success())
+            .unwrap_or(false);
+    ok.then_some(venv)
+}

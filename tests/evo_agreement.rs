@@ -1,0 +1,106 @@
+//! Runs evo (from a throwaway venv, never a project dependency) on the same files as stride
+//! and compares every statistic. Skipped when evo is not installed; `.ci/run` installs it.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
+
+mod common;
+
+use common::{data, evo_python, run_json};
+use std::process::Command;
+
+fn evo_stats(args: &[&str]) -> serde_json::Value {
+    let py = evo_python().expect("evo python");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/peers/evo_stats.py");
+    let out = Command::new(&py)
+        .arg(script)
+        .args(args)
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "evo failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    serde_json::from_str(text.lines().last().unwrap()).unwrap()
+}
+
+fn compare(what: &str, ours: &serde_json::Value, evo: &serde_json::Value) {
+    let evo_map = evo.as_object().unwrap();
+    assert!(evo_map.len() >= 8, "{what}: evo gave {evo}");
+    for (k, v) in evo_map {
+        let e = v.as_f64().unwrap();
+        let o = ours
+            .get(k)
+            .and_then(|x| x.as_f64())
+            .unwrap_or_else(|| panic!("{what}: stride lacks '{k}'"));
+        // 1e-6 absolute (metres or degrees); relative for large sums of squares.
+        let tol = 1e-6 * e.abs().max(1.0);
+        assert!((o - e).abs() <= tol, "{what}: {k} stride {o} vs evo {e}");
+    }
+}
+
+#[test]
+fn every_statistic_agrees_with_evo() {
+    if evo_python().is_none() {
+        eprintln!("SKIP: evo not installed (set STRIDE_EVO_PYTHON to a venv python with evo)");
+        return;
+    }
+    let (Some(gt), Some(est), Some(drift), Some(mono)) = (
+        data("trajectories/freiburg1_xyz-groundtruth.txt"),
+        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
+        data("trajectories/freiburg1_xyz-rgbdslam_drift.txt"),
+        data("trajectories/freiburg1_xyz-ORB_kf_mono.txt"),
+    ) else {
+        return;
+    };
+    let (gt, est, drift, mono) = (
+        gt.display().to_string(),
+        est.display().to_string(),
+        drift.display().to_string(),
+        mono.display().to_string(),
+    );
+    for (e, align) in [
+        (&est, "se3"),
+        (&est, "none"),
+        (&est, "origin"),
+        (&est, "sim3"),
+        (&drift, "se3"),
+        (&mono, "sim3"),
+    ] {
+        let ours = run_json(&[
+            "eval", "ate", "--gt", &gt, "--est", e, "--align", align, "--json",
+        ]);
+        let evo = evo_stats(&["ape", &gt, e, align, "0.01"]);
+        compare(&format!("ATE {e} {align}"), &ours, &evo);
+    }
+    for (e, delta, unit, all) in [
+        (&est, "1", "f", "0"),
+        (&est, "10", "f", "0"),
+        (&est, "10", "f", "1"),
+        (&drift, "0.1", "m", "0"),
+        (&drift, "0.1", "m", "1"),
+        (&drift, "1", "f", "0"),
+    ] {
+        let unit_name = if unit == "f" { "frames" } else { "metres" };
+        let mut args = vec![
+            "eval",
+            "rpe",
+            "--gt",
+            &gt,
+            "--est",
+            e,
+            "--delta",
+            delta,
+            "--delta-unit",
+            unit_name,
+            "--json",
+        ];
+        if all == "1" {
+            args.push("--all-pairs");
+        }
+        let ours = run_json(&args);
+        let evo = evo_stats(&["rpe", &gt, e, "none", "0.01", delta, unit, all]);
+        compare(&format!("RPE {e} {delta}{unit} all={all}"), &ours, &evo);
+    }
+}
