@@ -1,0 +1,130 @@
+//! The TUM sequence reader on real data (fr3/teddy, first 200 frames): association, camera
+//! inference, ground truth, background decoding, and frames that fail to load.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
+
+mod common;
+
+use common::data;
+use stride_datasets::tum::{AssociationOptions, CameraSource, TumSequence};
+
+#[test]
+fn teddy_200_opens_associates_and_decodes() {
+    let Some(dir) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let seq = TumSequence::open(&dir, None, AssociationOptions::default()).unwrap();
+    // The folder name says freiburg3: fr3 intrinsics, depth scale 5000.
+    assert_eq!(seq.camera_source, CameraSource::FolderName("fr3"));
+    assert_eq!(seq.camera.camera.fx, 535.4);
+    // 200 colour and 200 depth images; TUM's rule (|dt| < 0.02 s, one-to-one) pairs 193.
+    assert_eq!(seq.len(), 193);
+    assert_eq!(seq.unmatched_rgb, 7);
+    for f in &seq.frames {
+        assert!((f.t_rgb_s - f.t_depth_s).abs() < 0.02);
+    }
+    let gt = seq.groundtruth.as_ref().unwrap();
+    assert_eq!(gt.len(), 8080);
+    // Ground truth starts 0.14 s after the first image (data README).
+    let first_gt = gt.stamps_s()[0];
+    assert!(
+        (first_gt - seq.frames[0].t_rgb_s - 0.14).abs() < 0.01,
+        "{first_gt}"
+    );
+
+    let mut n = 0;
+    let mut valid_depth = 0usize;
+    for item in seq.stream(Some(20), 4) {
+        let d = item.unwrap();
+        assert_eq!(d.frame.index, n);
+        assert_eq!((d.frame.rgb.width(), d.frame.rgb.height()), (640, 480));
+        assert!(d.decode_s > 0.0);
+        for &z in d.frame.depth_m.as_slice() {
+            assert!(
+                z == 0.0 || (0.3..10.0).contains(&z),
+                "depth {z} m out of the sensor's range"
+            );
+            valid_depth += usize::from(z > 0.0);
+        }
+        n += 1;
+    }
+    assert_eq!(n, 20);
+    assert!(valid_depth > 20 * 640 * 480 / 2, "most pixels have depth");
+}
+
+#[test]
+fn missing_corrupt_and_wrongly_sized_frames_are_reported_and_skipped() {
+    let Some(src) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("copy");
+    std::fs::create_dir_all(dir.join("rgb")).unwrap();
+    std::fs::create_dir_all(dir.join("depth")).unwrap();
+    let seq = TumSequence::open(&src, Some("fr3"), AssociationOptions::default()).unwrap();
+    let (mut rgb_txt, mut depth_txt) = (String::new(), String::new());
+    for f in seq.frames.iter().take(4) {
+        let rn = f.rgb_path.file_name().unwrap().to_str().unwrap();
+        let dn = f.depth_path.file_name().unwrap().to_str().unwrap();
+        std::fs::copy(&f.rgb_path, dir.join("rgb").join(rn)).unwrap();
+        std::fs::copy(&f.depth_path, dir.join("depth").join(dn)).unwrap();
+        rgb_txt += &format!("{:.6} rgb/{rn}\n", f.t_rgb_s);
+        depth_txt += &format!("{:.6} depth/{dn}\n", f.t_depth_s);
+    }
+    std::fs::write(dir.join("rgb.txt"), rgb_txt).unwrap();
+    std::fs::write(dir.join("depth.txt"), depth_txt).unwrap();
+    // Frame 1: corrupt colour PNG. Frame 2: depth PNG missing. Frame 3 stays good.
+    let f1 = &seq.frames[1];
+    std::fs::write(
+        dir.join("rgb").join(f1.rgb_path.file_name().unwrap()),
+        b"\x89PNG garbage",
+    )
+    .unwrap();
+    std::fs::remove_file(
+        dir.join("depth")
+            .join(seq.frames[2].depth_path.file_name().unwrap()),
+    )
+    .unwrap();
+    // A camera file of another size makes every frame's size mismatch.
+    let copy = TumSequence::open(&dir, Some("fr3"), AssociationOptions::default()).unwrap();
+    let results: Vec<_> = copy.stream(None, 2).collect();
+    assert_eq!(results.len(), 4);
+    assert!(results[0].is_ok() && results[3].is_ok());
+    let e1 = results[1].as_ref().unwrap_err();
+    assert_eq!(e1.index, 1);
+    assert!(
+        e1.error
+            .to_string()
+            .contains(f1.rgb_path.file_name().unwrap().to_str().unwrap()),
+        "{}",
+        e1.error
+    );
+    let e2 = results[2].as_ref().unwrap_err();
+    assert!(e2.error.to_string().contains("depth/"), "{}", e2.error);
+
+    std::fs::write(
+        dir.join("camera.json"),
+        r#"{"fx": 300, "fy": 300, "cx": 160, "cy": 120, "width": 320, "height": 240, "depth_scale": 5000}"#,
+    )
+    .unwrap();
+    let small = TumSequence::open(&dir, None, AssociationOptions::default()).unwrap();
+    assert!(matches!(small.camera_source, CameraSource::SequenceFile(_)));
+    let e = small.load_frame(0).unwrap_err().to_string();
+    assert!(
+        e.contains("image is 640x480 but the camera is 320x240"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_folder_without_camera_or_lists_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let e = TumSequence::open(tmp.path(), None, AssociationOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no camera given"), "{e}");
+    let e = TumSequence::open(tmp.path(), Some("fr1"), AssociationOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("rgb.txt"), "{e}");
+}
