@@ -8,18 +8,24 @@
 //! * [`geometry`]: Umeyama's closed-form alignment of two point sets (SE(3) or Sim(3)).
 //! * [`camera`]: the pinhole camera with Brown-Conrady distortion; the camera frame is
 //!   x right, y down, z forward (OpenCV/TUM).
+//! * [`colormap`]: the viridis colour map for plots and previews.
 //! * [`image`] and [`frame`]: plain image buffers and the RGB-D frame (depth in metres).
+//! * [`grid`]: regular x-y grids (elevation maps, ground-truth terrain), z up.
+//! * [`rng`]: seeded and counter-based random numbers (reproducible runs).
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
 //! * [`fsutil`]: writing files atomically (temporary file, then rename).
 //!
 //! This crate depends on nalgebra only, so that mapping and evaluation can serve any SLAM.
 
 pub mod camera;
+pub mod colormap;
 pub mod frame;
 pub mod fsutil;
 pub mod geometry;
+pub mod grid;
 pub mod image;
 pub mod pose;
+pub mod rng;
 pub mod time;
 pub mod trajectory;
 

@@ -10,12 +10,17 @@
 //!   rgb/depth association as TUM's `associate.py`, and a frame iterator that decodes PNGs
 //!   ahead on a background thread.
 //! * [`png_io`]: PNG decoding and encoding for colour and 16-bit depth images.
+//! * [`grid_file`]: the grid format (`.npy` float32 layers + a JSON header) shared by the
+//!   synthetic ground truth and the elevation mapper.
+//! * [`synth`]: the synthetic legged-robot RGB-D generator with ground truth.
 //! * [`data_root`]: where the shared real data lives (`STRIDE_DATA` or `../shared/data`).
 
 pub mod camera_config;
 pub mod data_root;
 pub mod error;
+pub mod grid_file;
 pub mod png_io;
+pub mod synth;
 pub mod text;
 pub mod trajectory_file;
 pub mod tum;

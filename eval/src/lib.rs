@@ -6,6 +6,7 @@
 //! * [`rpe`]: relative pose error (evo's RPE, TUM's `evaluate_rpe.py --fixed_delta`).
 //! * [`options::Preset`] picks whose semantics to follow; `docs/evaluation.md` lists every
 //!   place where evo and the TUM tools differ and what each preset does there.
+//! * [`blur`]: image sharpness metrics for the gait-dependent motion-blur study (paper 004).
 //! * [`plot`], [`report`] and [`summary`]: SVG charts, Markdown/HTML reports and the JSON
 //!   objects of `stride eval`.
 //!
@@ -13,6 +14,7 @@
 
 pub mod align;
 pub mod ate;
+pub mod blur;
 pub mod error;
 pub mod options;
 pub mod plot;

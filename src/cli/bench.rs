@@ -15,6 +15,18 @@ use stride_eval::{ate, rpe, Align, AteOptions, Preset, RpeOptions};
 pub enum BenchCommand {
     /// ATE + RPE on a large synthetic trajectory pair, against evo on the same files.
     Eval(EvalBenchArgs),
+    /// Rendering speed of the synthetic generator at 640x480, without and with motion blur.
+    Synth(SynthBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct SynthBenchArgs {
+    /// Frames rendered per configuration (the median is reported).
+    #[arg(long, default_value_t = 15)]
+    frames: usize,
+    /// Walking speed (m/s) of the tripod gait used for the blurred frames.
+    #[arg(long, default_value_t = 0.15)]
+    speed: f64,
 }
 
 #[derive(Debug, Args)]
@@ -43,7 +55,50 @@ pub struct EvalBenchArgs {
 pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Eval(a) => bench_eval(a),
+        BenchCommand::Synth(a) => bench_synth(a),
     }
+}
+
+fn bench_synth(a: SynthBenchArgs) -> Result<()> {
+    use stride_datasets::png_io::{encode_depth_u16, encode_rgb};
+    use stride_datasets::synth::{motion::MotionConfig, Synth, SynthConfig};
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    crate::outln!("synthetic rendering, 640x480, procedural 'mixed' terrain, tripod at {} m/s; medians of {} frames", a.speed, a.frames)?;
+    for blur in [false, true] {
+        let config = SynthConfig {
+            frames: a.frames,
+            blur,
+            motion: MotionConfig {
+                speed_m_s: a.speed,
+                ..MotionConfig::default()
+            },
+            ..SynthConfig::default()
+        };
+        let synth = Synth::new(config)?;
+        let renderer = synth.renderer();
+        let (mut render, mut encode, mut sub) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..a.frames {
+            let f = synth.render_frame(&renderer, i);
+            let t = Instant::now();
+            let _ = encode_rgb(&f.rgb);
+            let _ = encode_depth_u16(&f.depth_raw);
+            encode.push(t.elapsed().as_secs_f64());
+            render.push(f.render_s);
+            sub.push(f.info.subframes as f64);
+        }
+        let r = median(render);
+        crate::outln!(
+            "{:<12} render {:>7.1} ms/frame ({:>5.1} frames/s), PNG encoding {:>5.1} ms/frame, sub-frames {:.0}",
+            if blur { "with blur" } else { "no blur" },
+            r * 1e3,
+            1.0 / r,
+            median(encode) * 1e3,
+            median(sub)
+        )?;
+    }
+    Ok(())
 }
 
 /// SplitMix64: a tiny, well-known deterministic generator, enough for benchmark data.
@@ -208,17 +263,20 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
     };
     let f = |v: &serde_json::Value, k: &str| v.get(k).and_then(|x| x.as_f64()).unwrap_or(f64::NAN);
     if a.json {
-        println!("{}", json!({"poses": a.poses, "stride": ours, "evo": evo}));
+        crate::outln!("{}", json!({"poses": a.poses, "stride": ours, "evo": evo}))?;
         return Ok(());
     }
-    println!(
+    crate::outln!(
         "ATE (SE(3), evo preset) + RPE (1 frame) on {} poses per trajectory; medians",
         a.poses
-    );
-    println!(
+    )?;
+    crate::outln!(
         "{:<22}{:>14}{:>14}{:>14}",
-        "", "stride (ms)", "evo (ms)", "evo / stride"
-    );
+        "",
+        "stride (ms)",
+        "evo (ms)",
+        "evo / stride"
+    )?;
     for (label, key) in [
         ("load both files", "load_s"),
         ("ATE", "ate_s"),
@@ -226,37 +284,37 @@ fn bench_eval(a: EvalBenchArgs) -> Result<()> {
     ] {
         let s = f(&ours, key) * 1e3;
         match &evo {
-            Some(e) => println!(
+            Some(e) => crate::outln!(
                 "{label:<22}{s:>14.2}{:>14.1}{:>14.1}",
                 f(e, key) * 1e3,
                 f(e, key) * 1e3 / s
-            ),
-            None => println!("{label:<22}{s:>14.2}{:>14}{:>14}", "-", "-"),
+            )?,
+            None => crate::outln!("{label:<22}{s:>14.2}{:>14}{:>14}", "-", "-")?,
         }
     }
     let total = |v: &serde_json::Value| f(v, "load_s") + f(v, "ate_s") + f(v, "rpe_s");
     match &evo {
         Some(e) => {
-            println!(
+            crate::outln!(
                 "{:<22}{:>14.2}{:>14.1}{:>14.1}",
                 "total",
                 total(&ours) * 1e3,
                 total(e) * 1e3,
                 total(e) / total(&ours)
-            );
-            println!(
+            )?;
+            crate::outln!(
                 "results agree: ATE rmse {:.9} vs {:.9} m, RPE rmse {:.9} vs {:.9} m",
                 ate_rmse,
                 f(e, "ate_rmse"),
                 rpe_rmse,
                 f(e, "rpe_rmse")
-            );
+            )?;
         }
-        None => println!(
+        None => crate::outln!(
             "{:<22}{:>14.2}   (pass --evo-python to time evo on the same files)",
             "total",
             total(&ours) * 1e3
-        ),
+        )?,
     }
     Ok(())
 }

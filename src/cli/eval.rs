@@ -110,9 +110,9 @@ fn emit(
         tracing::warn!("{w}");
     }
     if c.json {
-        println!("{}", serde_json::to_string(&json)?);
+        crate::outln!("{}", serde_json::to_string(&json)?)?;
     } else {
-        print!("{table}");
+        crate::outln!("{}", table.trim_end())?;
     }
     if let Some(p) = &c.plot {
         write_atomic(p, svg().as_bytes())

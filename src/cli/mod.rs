@@ -2,6 +2,7 @@
 
 mod bench;
 mod eval;
+mod synth;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -26,9 +27,21 @@ enum Command {
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
     #[command(subcommand)]
     Eval(eval::EvalCommand),
+    /// Render a synthetic legged-robot RGB-D sequence with ground truth (TUM layout).
+    Synth(synth::SynthArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+}
+
+/// Prints to stdout, returning an error (instead of panicking like `println!`) when stdout
+/// is closed, e.g. by `| head`.
+#[macro_export]
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout(), $($arg)*)
+    }};
 }
 
 /// Logs go to stderr so that stdout carries only results (tables or JSON).
@@ -54,5 +67,6 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Eval(c) => eval::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Synth(a) => synth::run(a),
     }
 }

@@ -1,0 +1,297 @@
+//! The project's grid format: one NumPy `.npy` file per layer (float32, row-major, NaN where
+//! unknown) and a JSON header `grid.json` beside it:
+//!
+//! ```json
+//! {"origin_x": -2.0, "origin_y": -2.0, "resolution": 0.01, "rows": 400, "cols": 400,
+//!  "row_axis": "+y", "col_axis": "+x", "frame": "world", "z": "up"}
+//! ```
+//!
+//! `origin_x`, `origin_y` are the world coordinates (m) of the *centre* of cell `[0, 0]`;
+//! row `r` lies at `y = origin_y + r * resolution`, column `c` at `x = origin_x + c *
+//! resolution`. Values are heights along the world's z axis (up), in metres, or whatever the
+//! layer's name says (variance in m², counts). In NumPy: `np.load("elevation.npy")` with
+//! `origin="lower"` in `imshow` to see +y upwards.
+
+use crate::error::DatasetError;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use stride_core::fsutil::write_atomic;
+use stride_core::grid::{Grid, GridGeometry};
+
+/// The JSON header of a grid.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridHeader {
+    /// World x of the centre of cell [0, 0] (m).
+    pub origin_x: f64,
+    /// World y of the centre of cell [0, 0] (m).
+    pub origin_y: f64,
+    /// Cell size (m).
+    pub resolution: f64,
+    /// Rows (along +y).
+    pub rows: usize,
+    /// Columns (along +x).
+    pub cols: usize,
+    /// Direction of increasing row index: always `"+y"`.
+    pub row_axis: String,
+    /// Direction of increasing column index: always `"+x"`.
+    pub col_axis: String,
+    /// The frame of x, y and the values: `"world"`.
+    pub frame: String,
+    /// Direction of the value axis: `"up"`.
+    #[serde(default = "up")]
+    pub z: String,
+}
+
+fn up() -> String {
+    "up".to_owned()
+}
+
+impl GridHeader {
+    /// The header of a world-frame, z-up grid with this geometry.
+    pub fn world(g: &GridGeometry) -> Self {
+        Self {
+            origin_x: g.origin_x,
+            origin_y: g.origin_y,
+            resolution: g.resolution,
+            rows: g.rows,
+            cols: g.cols,
+            row_axis: "+y".into(),
+            col_axis: "+x".into(),
+            frame: "world".into(),
+            z: up(),
+        }
+    }
+
+    /// The geometry it describes.
+    pub fn geometry(&self) -> GridGeometry {
+        GridGeometry {
+            origin_x: self.origin_x,
+            origin_y: self.origin_y,
+            resolution: self.resolution,
+            rows: self.rows,
+            cols: self.cols,
+        }
+    }
+}
+
+/// Encodes a float32 array of shape `(rows, cols)` as `.npy` (version 1.0) bytes.
+pub fn encode_npy_f32(rows: usize, cols: usize, data: &[f32]) -> Vec<u8> {
+    let mut header =
+        format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    // Magic (6) + version (2) + header length (2) + header, padded to a multiple of 64.
+    let total = 10 + header.len() + 1;
+    header.push_str(&" ".repeat((64 - total % 64) % 64));
+    header.push('\n');
+    let mut out = Vec::with_capacity(10 + header.len() + data.len() * 4);
+    out.extend_from_slice(b"\x93NUMPY\x01\x00");
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// Decodes a 2-D `.npy` array of little-endian float32 or float64 (C order) into
+/// `(rows, cols, data)`.
+pub fn decode_npy_f32(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<f32>), DatasetError> {
+    let bad = |m: &str| DatasetError::invalid(path, format!("not a usable .npy array: {m}"));
+    if bytes.len() < 10 || !bytes.starts_with(b"\x93NUMPY") {
+        return Err(bad("missing the NumPy magic"));
+    }
+    let major = bytes.get(6).copied().unwrap_or(0);
+    let (hlen, start) = match major {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 => {
+            let b = bytes.get(8..12).ok_or_else(|| bad("truncated header"))?;
+            (u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, 12)
+        }
+        _ => return Err(bad("unknown version")),
+    };
+    let header = bytes
+        .get(start..start + hlen)
+        .ok_or_else(|| bad("truncated header"))?;
+    let header = std::str::from_utf8(header).map_err(|_| bad("header is not text"))?;
+    let word_size = if header.contains("'<f4'") {
+        4
+    } else if header.contains("'<f8'") {
+        8
+    } else {
+        return Err(bad("dtype must be little-endian float32 or float64"));
+    };
+    if header.contains("'fortran_order': True") {
+        return Err(bad("Fortran order is not supported"));
+    }
+    let shape = header
+        .split("'shape':")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .map(|s| s.trim().trim_start_matches('('))
+        .ok_or_else(|| bad("no shape"))?;
+    let dims: Vec<usize> = shape
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| s.parse().map_err(|_| bad("shape is not integers")))
+        .collect::<Result<_, _>>()?;
+    let [rows, cols] = dims.as_slice() else {
+        return Err(bad("the array must be 2-D"));
+    };
+    let body = &bytes[start + hlen..];
+    let n = rows * cols;
+    if body.len() != n * word_size {
+        return Err(bad(&format!(
+            "expected {} data bytes for shape ({rows}, {cols}), found {}",
+            n * word_size,
+            body.len()
+        )));
+    }
+    let data = if word_size == 4 {
+        body.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    } else {
+        body.chunks_exact(8)
+            .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]) as f32)
+            .collect()
+    };
+    Ok((*rows, *cols, data))
+}
+
+/// Writes one layer as `.npy` (atomically).
+pub fn write_layer(path: &Path, grid: &Grid<f32>) -> Result<(), DatasetError> {
+    let g = grid.geometry;
+    write_atomic(path, &encode_npy_f32(g.rows, g.cols, grid.as_slice()))
+        .map_err(|e| DatasetError::io(path, e))
+}
+
+/// Writes the JSON header (atomically).
+pub fn write_header(path: &Path, geometry: &GridGeometry) -> Result<(), DatasetError> {
+    let text = serde_json::to_string_pretty(&GridHeader::world(geometry)).unwrap_or_default();
+    write_atomic(path, text.as_bytes()).map_err(|e| DatasetError::io(path, e))
+}
+
+/// Reads a layer and its header: `header` defaults to the `.json` with the layer's stem
+/// (`terrain.npy` -> `terrain.json`), else `grid.json` in the same folder.
+pub fn read_grid(npy: &Path, header: Option<&Path>) -> Result<Grid<f32>, DatasetError> {
+    let header_path = match header {
+        Some(h) => h.to_path_buf(),
+        None => {
+            let same_stem = npy.with_extension("json");
+            if same_stem.is_file() {
+                same_stem
+            } else {
+                npy.with_file_name("grid.json")
+            }
+        }
+    };
+    let text = crate::text::read_text(&header_path)?;
+    let h: GridHeader = serde_json::from_str(&text).map_err(|e| {
+        DatasetError::parse(&header_path, e.line(), format!("invalid grid header: {e}"))
+    })?;
+    if h.row_axis != "+y" || h.col_axis != "+x" {
+        return Err(DatasetError::invalid(
+            &header_path,
+            "only row_axis \"+y\" and col_axis \"+x\" are supported",
+        ));
+    }
+    if !(h.resolution.is_finite() && h.resolution > 0.0) {
+        return Err(DatasetError::invalid(
+            &header_path,
+            format!("resolution {} must be positive", h.resolution),
+        ));
+    }
+    let bytes = std::fs::read(npy).map_err(|e| DatasetError::io(npy, e))?;
+    let (rows, cols, data) = decode_npy_f32(&bytes, npy)?;
+    if (rows, cols) != (h.rows, h.cols) {
+        return Err(DatasetError::invalid(
+            npy,
+            format!(
+                "array is {rows}x{cols} but {} says {}x{}",
+                header_path.display(),
+                h.rows,
+                h.cols
+            ),
+        ));
+    }
+    Grid::from_vec(h.geometry(), data).ok_or_else(|| DatasetError::invalid(npy, "size mismatch"))
+}
+
+/// A colour-relief preview of an elevation grid as PNG bytes: viridis over the height range,
+/// shaded by a light from the north-west, NaN cells light grey, +y up (north at the top),
+/// one pixel per cell (downsampled by an integer factor to at most `max_side` pixels).
+pub fn relief_png(grid: &Grid<f32>, max_side: usize) -> Result<Vec<u8>, String> {
+    let g = grid.geometry;
+    let step = g.rows.max(g.cols).div_ceil(max_side.max(1)).max(1);
+    let (h, w) = (g.rows.div_ceil(step), g.cols.div_ceil(step));
+    let (lo, hi) = grid.min_max().unwrap_or((0.0, 1.0));
+    let span = f64::from((hi - lo).max(1e-6));
+    let res = g.resolution * step as f64;
+    let at = |r: usize, c: usize| {
+        grid.get(r.min(g.rows - 1), c.min(g.cols - 1))
+            .map(f64::from)
+    };
+    let mut px = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let r = (h - 1 - y) * step; // image top = +y edge
+        for x in 0..w {
+            let c = x * step;
+            let v = at(r, c).unwrap_or(f64::NAN);
+            if v.is_nan() {
+                px.push([225u8, 225, 225]);
+                continue;
+            }
+            let dzdx = (at(r, c + step).unwrap_or(v) - at(r, c.saturating_sub(step)).unwrap_or(v))
+                / (2.0 * res);
+            let dzdy = (at(r + step, c).unwrap_or(v) - at(r.saturating_sub(step), c).unwrap_or(v))
+                / (2.0 * res);
+            let dzdx = if dzdx.is_nan() { 0.0 } else { dzdx };
+            let dzdy = if dzdy.is_nan() { 0.0 } else { dzdy };
+            let n = (dzdx * dzdx + dzdy * dzdy + 1.0).sqrt();
+            let shade = ((dzdx * 0.5 - dzdy * 0.5 + 0.707) / n).clamp(0.0, 1.0) * 0.6 + 0.55;
+            let (cr, cg, cb) = stride_core::colormap::viridis((v - f64::from(lo)) / span);
+            let f = |c: u8| (f64::from(c) * shade).round().clamp(0.0, 255.0) as u8;
+            px.push([f(cr), f(cg), f(cb)]);
+        }
+    }
+    let img =
+        stride_core::image::Image::from_vec(w as u32, h as u32, px).map_err(|e| e.to_string())?;
+    crate::png_io::encode_rgb(&img)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn npy_round_trip_and_alignment() {
+        let data = vec![1.0f32, f32::NAN, -2.5, 4.0, 5.0, 6.0];
+        let bytes = encode_npy_f32(2, 3, &data);
+        let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+        assert_eq!((10 + hlen) % 64, 0);
+        let (r, c, back) = decode_npy_f32(&bytes, Path::new("x.npy")).unwrap();
+        assert_eq!((r, c), (2, 3));
+        assert_eq!(back[0], 1.0);
+        assert!(back[1].is_nan());
+        assert!(decode_npy_f32(b"nope", Path::new("x.npy")).is_err());
+        assert!(decode_npy_f32(&bytes[..bytes.len() - 2], Path::new("x.npy")).is_err());
+    }
+
+    #[test]
+    fn grid_round_trip_with_header() {
+        let dir = std::env::temp_dir().join(format!("stride-grid-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let g = GridGeometry::covering(-1.0, -0.5, 1.0, 0.5, 0.25);
+        let mut grid = Grid::filled(g, 0.0f32);
+        *grid.get_mut(1, 2).unwrap() = 0.3;
+        write_layer(&dir.join("terrain.npy"), &grid).unwrap();
+        write_header(&dir.join("terrain.json"), &g).unwrap();
+        let back = read_grid(&dir.join("terrain.npy"), None).unwrap();
+        assert_eq!(back, grid);
+        let e = read_grid(&dir.join("missing.npy"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("grid.json"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

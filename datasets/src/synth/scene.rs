@@ -1,0 +1,437 @@
+//! The synthetic world: a terrain height field, objects (boxes) standing on it off the
+//! robot's path, and walls around, all in the world frame (z up, metres).
+
+use super::terrain::HeightField;
+use super::texture::Material;
+use nalgebra::{Isometry3, Point3};
+use stride_core::camera::PinholeCamera;
+use stride_core::grid::Grid;
+use stride_core::rng::SplitMix64;
+
+/// A box standing upright (rotated about z by `yaw`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneBox {
+    /// Centre x, y (m).
+    pub cx: f64,
+    /// Centre y (m).
+    pub cy: f64,
+    /// Bottom z (m).
+    pub z0: f64,
+    /// Top z (m).
+    pub z1: f64,
+    /// Half extent along the box's own x (m).
+    pub hx: f64,
+    /// Half extent along the box's own y (m).
+    pub hy: f64,
+    /// Rotation about z (rad).
+    pub yaw: f64,
+    /// Surface kind.
+    pub material: Material,
+    /// `(sin yaw, cos yaw)`, cached.
+    sin_cos: (f64, f64),
+}
+
+/// A ray's first hit in the scene.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Hit {
+    /// Distance along the unit ray (m).
+    pub t: f64,
+    /// Unit surface normal (world).
+    pub normal: [f64; 3],
+    /// Surface kind.
+    pub material: Material,
+    /// Surface texture coordinates (m).
+    pub uv: (f64, f64),
+}
+
+impl SceneBox {
+    /// A box centred at `(cx, cy)` from `z0` up to `z1` (m), half extents `hx`, `hy` (m),
+    /// rotated by `yaw` (rad) about z.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        cx: f64,
+        cy: f64,
+        z0: f64,
+        z1: f64,
+        hx: f64,
+        hy: f64,
+        yaw: f64,
+        material: Material,
+    ) -> Self {
+        Self {
+            cx,
+            cy,
+            z0,
+            z1,
+            hx,
+            hy,
+            yaw,
+            material,
+            sin_cos: yaw.sin_cos(),
+        }
+    }
+
+    /// Ray-box intersection (slab test in the box frame): `(t, normal, uv)` of the entry.
+    #[inline]
+    pub fn intersect(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+    ) -> Option<(f64, [f64; 3], (f64, f64))> {
+        let (s, c) = self.sin_cos;
+        let (ox, oy) = (o[0] - self.cx, o[1] - self.cy);
+        let lo = [ox * c + oy * s, -ox * s + oy * c, o[2]];
+        let ld = [d[0] * c + d[1] * s, -d[0] * s + d[1] * c, d[2]];
+        let mins = [-self.hx, -self.hy, self.z0];
+        let maxs = [self.hx, self.hy, self.z1];
+        let (mut t0, mut t1) = (0.0f64, t_max);
+        let mut axis = 3usize;
+        let mut sign = 0.0;
+        for k in 0..3 {
+            if ld[k].abs() < 1e-12 {
+                if lo[k] < mins[k] || lo[k] > maxs[k] {
+                    return None;
+                }
+                continue;
+            }
+            let inv = 1.0 / ld[k];
+            let (mut ta, mut tb) = ((mins[k] - lo[k]) * inv, (maxs[k] - lo[k]) * inv);
+            let mut sg = -1.0;
+            if ta > tb {
+                std::mem::swap(&mut ta, &mut tb);
+                sg = 1.0;
+            }
+            if ta > t0 {
+                t0 = ta;
+                axis = k;
+                sign = sg;
+            }
+            t1 = t1.min(tb);
+            if t0 > t1 {
+                return None;
+            }
+        }
+        if axis == 3 {
+            return None; // the ray starts inside the box
+        }
+        let p = [lo[0] + t0 * ld[0], lo[1] + t0 * ld[1], lo[2] + t0 * ld[2]];
+        let (local_n, uv) = match axis {
+            0 => ([sign, 0.0, 0.0], (p[1], p[2])),
+            1 => ([0.0, sign, 0.0], (p[0], p[2])),
+            _ => ([0.0, 0.0, sign], (p[0], p[1])),
+        };
+        let n = [
+            local_n[0] * c - local_n[1] * s,
+            local_n[0] * s + local_n[1] * c,
+            local_n[2],
+        ];
+        Some((t0, n, uv))
+    }
+
+    /// True when `(x, y)` lies inside the footprint.
+    pub fn covers(&self, x: f64, y: f64) -> bool {
+        let (s, c) = self.sin_cos;
+        let (dx, dy) = (x - self.cx, y - self.cy);
+        (dx * c + dy * s).abs() <= self.hx && (-dx * s + dy * c).abs() <= self.hy
+    }
+
+    fn corners(&self) -> [[f64; 3]; 8] {
+        let (s, c) = self.sin_cos;
+        let mut out = [[0.0; 3]; 8];
+        for (i, corner) in out.iter_mut().enumerate() {
+            let u = if i & 1 == 0 { -self.hx } else { self.hx };
+            let v = if i & 2 == 0 { -self.hy } else { self.hy };
+            let z = if i & 4 == 0 { self.z0 } else { self.z1 };
+            *corner = [self.cx + u * c - v * s, self.cy + u * s + v * c, z];
+        }
+        out
+    }
+}
+
+/// The world the camera sees.
+pub struct Scene {
+    /// The terrain.
+    pub terrain: HeightField,
+    /// Objects and walls.
+    pub boxes: Vec<SceneBox>,
+    /// Seed of the textures.
+    pub texture_seed: u32,
+}
+
+/// Pixel-space bounding box of an object in one frame (inclusive).
+#[derive(Debug, Clone, Copy)]
+pub struct ScreenBox {
+    index: usize,
+    u0: f64,
+    v0: f64,
+    u1: f64,
+    v1: f64,
+}
+
+impl Scene {
+    /// Builds the scene: walls enclosing the path's bounding box with `margin_m` to spare
+    /// (clamped to the terrain), and `n_objects` boxes at least `clearance_m` away from the
+    /// path, standing on the terrain. Deterministic for a seed.
+    pub fn build(
+        terrain: HeightField,
+        path: &[(f64, f64)],
+        margin_m: f64,
+        n_objects: usize,
+        clearance_m: f64,
+        seed: u64,
+    ) -> Self {
+        let mut rng = SplitMix64::new(seed ^ 0x5CE7E);
+        let (tx0, ty0, tx1, ty1) = terrain.grid().geometry.extent();
+        let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+        for &(x, y) in path {
+            x0 = x0.min(x);
+            y0 = y0.min(y);
+            x1 = x1.max(x);
+            y1 = y1.max(y);
+        }
+        let (x0, y0) = (
+            (x0 - margin_m).max(tx0 + 0.1),
+            (y0 - margin_m).max(ty0 + 0.1),
+        );
+        let (x1, y1) = (
+            (x1 + margin_m).min(tx1 - 0.1),
+            (y1 + margin_m).min(ty1 - 0.1),
+        );
+        let (lo, _) = terrain.range();
+        let mut boxes = Vec::new();
+        let wall = |cx, cy, hx, hy, id| {
+            SceneBox::new(cx, cy, lo - 0.5, lo + 2.2, hx, hy, 0.0, Material::Wall(id))
+        };
+        let (mx, my) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+        let (hx, hy) = ((x1 - x0) / 2.0, (y1 - y0) / 2.0);
+        boxes.push(wall(mx, y0, hx + 0.05, 0.05, 0));
+        boxes.push(wall(mx, y1, hx + 0.05, 0.05, 1));
+        boxes.push(wall(x0, my, 0.05, hy + 0.05, 2));
+        boxes.push(wall(x1, my, 0.05, hy + 0.05, 3));
+        let mut attempts = 0;
+        let mut placed = 0u32;
+        while (placed as usize) < n_objects && attempts < 2000 {
+            attempts += 1;
+            let (cx, cy) = (rng.range(x0 + 0.4, x1 - 0.4), rng.range(y0 + 0.4, y1 - 0.4));
+            let (bhx, bhy) = (rng.range(0.12, 0.4), rng.range(0.12, 0.4));
+            let height = rng.range(0.25, 1.1);
+            let yaw = rng.range(0.0, std::f64::consts::PI);
+            let reach = bhx.hypot(bhy) + clearance_m;
+            if path
+                .iter()
+                .any(|&(px, py)| (px - cx).hypot(py - cy) < reach)
+            {
+                continue;
+            }
+            if boxes
+                .iter()
+                .skip(4)
+                .any(|b: &SceneBox| (b.cx - cx).hypot(b.cy - cy) < reach + b.hx.hypot(b.hy))
+            {
+                continue;
+            }
+            let ground = terrain.height(cx, cy);
+            boxes.push(SceneBox::new(
+                cx,
+                cy,
+                ground - 0.05,
+                ground + height,
+                bhx,
+                bhy,
+                yaw,
+                Material::Object(placed),
+            ));
+            placed += 1;
+        }
+        Self {
+            terrain,
+            boxes,
+            texture_seed: (seed as u32) ^ 0x7E57,
+        }
+    }
+
+    /// The objects whose projection may cover pixels in this frame, with their pixel
+    /// bounding boxes (conservative: a box partly behind the camera covers the whole image).
+    pub fn screen_boxes(
+        &self,
+        camera: &PinholeCamera,
+        world_from_camera: &Isometry3<f64>,
+    ) -> Vec<ScreenBox> {
+        let camera_from_world = world_from_camera.inverse();
+        let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+        self.boxes
+            .iter()
+            .enumerate()
+            .filter_map(|(index, b)| {
+                let mut behind = 0;
+                let (mut u0, mut v0, mut u1, mut v1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+                for c in b.corners() {
+                    let p = camera_from_world * Point3::new(c[0], c[1], c[2]);
+                    if p.z <= 0.05 {
+                        behind += 1;
+                        continue;
+                    }
+                    let u = camera.fx * p.x / p.z + camera.cx;
+                    let v = camera.fy * p.y / p.z + camera.cy;
+                    u0 = u0.min(u);
+                    v0 = v0.min(v);
+                    u1 = u1.max(u);
+                    v1 = v1.max(v);
+                }
+                if behind == 8 {
+                    return None;
+                }
+                if behind > 0 {
+                    return Some(ScreenBox {
+                        index,
+                        u0: -1.0,
+                        v0: -1.0,
+                        u1: w + 1.0,
+                        v1: h + 1.0,
+                    });
+                }
+                let sb = ScreenBox {
+                    index,
+                    u0: u0 - 1.0,
+                    v0: v0 - 1.0,
+                    u1: u1 + 1.0,
+                    v1: v1 + 1.0,
+                };
+                (sb.u1 >= 0.0 && sb.v1 >= 0.0 && sb.u0 < w && sb.v0 < h).then_some(sb)
+            })
+            .collect()
+    }
+
+    /// First hit along the unit ray `o + t d`, `t <= t_max`, testing only the objects of
+    /// `candidates` whose pixel box contains `(u, v)`.
+    #[inline]
+    pub fn trace(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+        candidates: &[ScreenBox],
+        u: f64,
+        v: f64,
+    ) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut limit = t_max;
+        for sb in candidates {
+            if u < sb.u0 || u > sb.u1 || v < sb.v0 || v > sb.v1 {
+                continue;
+            }
+            let Some(b) = self.boxes.get(sb.index) else {
+                continue;
+            };
+            if let Some((t, normal, uv)) = b.intersect(o, d, limit) {
+                limit = t;
+                best = Some(Hit {
+                    t,
+                    normal,
+                    material: b.material,
+                    uv,
+                });
+            }
+        }
+        if let Some(th) = self.terrain.intersect(o, d, limit) {
+            let (x, y) = (o[0] + th.t * d[0], o[1] + th.t * d[1]);
+            best = Some(Hit {
+                t: th.t,
+                normal: self.terrain.normal(x, y),
+                material: Material::Ground,
+                uv: (x, y),
+            });
+        }
+        best
+    }
+
+    /// The true elevation: the highest surface (terrain, object or wall top) at each cell
+    /// centre of the terrain grid (m, world z up).
+    pub fn ground_truth_elevation(&self) -> Grid<f32> {
+        let mut grid = self.terrain.grid().clone();
+        let g = grid.geometry;
+        for b in &self.boxes {
+            let reach = b.hx.hypot(b.hy);
+            let (Some((r0, c0)), Some((r1, c1))) = (
+                g.cell_of(
+                    (b.cx - reach).max(g.extent().0),
+                    (b.cy - reach).max(g.extent().1),
+                ),
+                g.cell_of(
+                    (b.cx + reach).min(g.extent().2 - 1e-9),
+                    (b.cy + reach).min(g.extent().3 - 1e-9),
+                ),
+            ) else {
+                continue;
+            };
+            for r in r0..=r1 {
+                for c in c0..=c1 {
+                    let (x, y) = g.center(r, c);
+                    if b.covers(x, y) {
+                        if let Some(v) = grid.get_mut(r, c) {
+                            *v = v.max(b.z1 as f32);
+                        }
+                    }
+                }
+            }
+        }
+        grid
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stride_core::grid::GridGeometry;
+
+    fn flat() -> HeightField {
+        HeightField::new(Grid::filled(
+            GridGeometry::covering(-5.0, -5.0, 5.0, 5.0, 0.02),
+            0.0,
+        ))
+    }
+
+    #[test]
+    fn box_faces_are_hit_with_outward_normals() {
+        let b = SceneBox::new(2.0, 0.0, 0.0, 1.0, 0.5, 0.5, 0.0, Material::Object(0));
+        let (t, n, _) = b.intersect([0.0, 0.0, 0.5], [1.0, 0.0, 0.0], 10.0).unwrap();
+        assert!((t - 1.5).abs() < 1e-12 && n == [-1.0, 0.0, 0.0]);
+        let (t, n, _) = b
+            .intersect([2.0, 0.0, 3.0], [0.0, 0.0, -1.0], 10.0)
+            .unwrap();
+        assert!((t - 2.0).abs() < 1e-12 && (n[2] - 1.0).abs() < 1e-12);
+        assert!(b
+            .intersect([0.0, 2.0, 0.5], [1.0, 0.0, 0.0], 10.0)
+            .is_none());
+        let r = SceneBox::new(
+            2.0,
+            0.0,
+            0.0,
+            1.0,
+            0.5,
+            0.5,
+            std::f64::consts::FRAC_PI_4,
+            Material::Object(0),
+        );
+        let (t, _, _) = r.intersect([0.0, 0.0, 0.5], [1.0, 0.0, 0.0], 10.0).unwrap();
+        assert!((t - (2.0 - 0.5 * 2f64.sqrt())).abs() < 1e-9);
+    }
+
+    #[test]
+    fn objects_keep_clear_of_the_path_and_ground_truth_includes_them() {
+        let path: Vec<(f64, f64)> = (0..20).map(|i| (i as f64 * 0.1, 0.0)).collect();
+        let s = Scene::build(flat(), &path, 2.5, 10, 0.6, 7);
+        assert_eq!(s.boxes.len(), 14);
+        for b in s.boxes.iter().skip(4) {
+            for &(x, y) in &path {
+                assert!(!b.covers(x, y));
+                assert!((b.cx - x).hypot(b.cy - y) > 0.6);
+            }
+        }
+        let gt = s.ground_truth_elevation();
+        let b = s.boxes[4];
+        assert!((f64::from(gt.at(b.cx, b.cy).unwrap()) - b.z1).abs() < 1e-6);
+        assert_eq!(gt.at(1.0, 0.0).unwrap(), 0.0);
+    }
+}
