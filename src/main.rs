@@ -3,6 +3,7 @@
 //! The binary wires the library crates together; see `stride --help`.
 
 mod cli;
+mod pipeline;
 
 use clap::Parser;
 

@@ -13,6 +13,7 @@
 //! * [`grid`]: regular x-y grids (elevation maps, ground-truth terrain), z up.
 //! * [`rng`]: seeded and counter-based random numbers (reproducible runs).
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
+//! * [`uncertainty`]: per-point 3x3 covariances of RGB-D measurements (PrimeSense model).
 //! * [`fsutil`]: writing files atomically (temporary file, then rename).
 //!
 //! This crate depends on nalgebra only, so that mapping and evaluation can serve any SLAM.
@@ -28,5 +29,6 @@ pub mod pose;
 pub mod rng;
 pub mod time;
 pub mod trajectory;
+pub mod uncertainty;
 
 pub use nalgebra;

@@ -1,3 +1,30 @@
-//! stride-frontend: keypoints, KLT tracking, ORB descriptors, Umeyama + RANSAC visual odometry.
+//! # stride-frontend
 //!
-//! Empty for now: the front end is built in its own issue.
+//! RGB-D visual odometry after PUT SLAM's front end (paper 004, section 3.1): keypoints spread
+//! evenly over the image ([`features`], FAST with grid bucketing, ORB descriptors on
+//! keyframes), pyramidal Lucas-Kanade tracking with a forward-backward check seeded by the
+//! predicted motion ([`klt`]), 3-D points with per-point covariances from the depth image
+//! ([`points`], paper 000 eqs. 10-12), and the camera motion from Umeyama + RANSAC refined
+//! with the covariance-weighted 3-D error ([`motion`]). [`VisualOdometry`] ties them together.
+//!
+//! Deterministic: RANSAC is seeded, OpenCV's tracking and detection do not depend on thread
+//! scheduling, and nothing else is random.
+
+pub mod config;
+pub mod error;
+pub mod features;
+pub mod klt;
+pub mod motion;
+pub mod points;
+pub mod vo;
+
+pub use config::{InlierTest, VoConfig};
+pub use error::FrontendError;
+pub use vo::{FrameResult, StageTimes, TrackingStatus, VisualOdometry};
+
+/// Sets the number of threads OpenCV's own pool uses (its parallel Lucas-Kanade and FAST).
+/// OpenCV runs beside rayon, so choose it on purpose; results do not depend on it.
+pub fn set_opencv_threads(n: usize) -> Result<(), FrontendError> {
+    opencv::core::set_num_threads(i32::try_from(n).unwrap_or(1))?;
+    Ok(())
+}

@@ -2,6 +2,7 @@
 
 mod bench;
 mod eval;
+mod run;
 mod synth;
 
 use anyhow::Result;
@@ -27,6 +28,8 @@ enum Command {
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
     #[command(subcommand)]
     Eval(eval::EvalCommand),
+    /// Run the SLAM pipeline (visual odometry for now) on an RGB-D sequence.
+    Run(run::RunArgs),
     /// Render a synthetic legged-robot RGB-D sequence with ground truth (TUM layout).
     Synth(synth::SynthArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
@@ -68,5 +71,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Eval(c) => eval::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
+        Command::Run(a) => run::run(a),
     }
 }
