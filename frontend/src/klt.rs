@@ -12,6 +12,11 @@ use opencv::video::{
 };
 use stride_core::image::GrayImage;
 
+/// Pyramid levels above full resolution used by the backward check.
+const BACK_LEVELS: i32 = 1;
+/// Pyramid levels above full resolution used by the re-alignment.
+const REALIGN_LEVELS: i32 = 0;
+
 /// An image pyramid with derivatives, built once per frame and used for tracking both ways.
 pub struct Pyramid {
     levels: Vector<Mat>,
@@ -81,43 +86,64 @@ fn lk_levels(
     Ok(status)
 }
 
-/// Tracks `points` from `prev` to `next`, starting from `guesses` (predicted positions), and
-/// keeps only tracks that come back to within `fb_max_error_px` of their start when tracked
-/// backwards and that stay inside the image. Returns the new position of each point or
-/// `None`.
+/// A point tracked forward and back.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tracked {
+    /// Its position in the next image (px).
+    pub px: Point2f,
+    /// Distance between its start and where tracking it back from `px` ends (px).
+    pub fb_error_px: f32,
+}
+
+/// Tracks `points` from `prev` to `next`, starting from `guesses` (predicted positions), then
+/// back from the result to `prev`. Returns, for each point that both trackings found and that
+/// stays inside the image, its new position and forward-backward error; the caller decides
+/// how much error to accept.
 pub fn track(
     prev: &Pyramid,
     next: &Pyramid,
     points: &[Point2f],
     guesses: &[Point2f],
     config: &VoConfig,
-) -> Result<Vec<Option<Point2f>>, FrontendError> {
+) -> Result<Vec<Option<Tracked>>, FrontendError> {
     if points.is_empty() {
         return Ok(Vec::new());
     }
     let from: Vector<Point2f> = points.iter().copied().collect();
     let mut fwd: Vector<Point2f> = guesses.iter().copied().collect();
     let st_f = lk(prev, next, &from, &mut fwd, config)?;
+    // Back from the forward result, seeded at the start point: a correct track comes back
+    // with almost no displacement, so the two finest levels suffice.
     let mut back: Vector<Point2f> = from.clone();
-    let st_b = lk(next, prev, &fwd, &mut back, config)?;
+    let st_b = lk_levels(
+        next,
+        prev,
+        &fwd,
+        &mut back,
+        config,
+        config.klt_levels.min(BACK_LEVELS),
+    )?;
     let (w, h) = (next.gray.cols() as f32, next.gray.rows() as f32);
-    let max2 = config.fb_max_error_px * config.fb_max_error_px;
     Ok((0..points.len())
         .map(|i| {
             let ok = st_f.get(i).ok()? == 1 && st_b.get(i).ok()? == 1;
             let p = fwd.get(i).ok()?;
             let b = back.get(i).ok()?;
             let o = points.get(i)?;
-            let fb = (b.x - o.x).powi(2) + (b.y - o.y).powi(2);
+            let fb = ((b.x - o.x).powi(2) + (b.y - o.y).powi(2)).sqrt();
             let inside = p.x >= 0.0 && p.y >= 0.0 && p.x <= w - 1.0 && p.y <= h - 1.0;
-            (ok && fb <= max2 && inside).then_some(p)
+            (ok && inside && fb.is_finite()).then_some(Tracked {
+                px: p,
+                fb_error_px: fb,
+            })
         })
         .collect())
 }
 
 /// Re-aligns tracked points with their appearance in the keyframe where they were first
 /// detected: Lucas-Kanade from `keyframe` (at `origins`) to `current`, seeded by the
-/// frame-to-frame positions `tracked`, on the two finest pyramid levels. Frame-to-frame
+/// frame-to-frame positions `tracked`, at full resolution only (the seed is within a
+/// few pixels). Frame-to-frame
 /// tracking drifts like a random walk on real images; this removes the drift. A point whose
 /// re-aligned position moves by more than `max_correction_px` (its appearance changed, or it
 /// slid along an edge) is reported as `None`.
@@ -140,7 +166,7 @@ pub fn realign(
         &from,
         &mut refined,
         config,
-        1.min(config.klt_levels),
+        config.klt_levels.min(REALIGN_LEVELS),
     )?;
     let max2 = max_correction_px * max_correction_px;
     Ok((0..origins.len())

@@ -132,6 +132,14 @@ struct Track {
     origin_px: Point2f,
 }
 
+/// One attempt at the pose: the tracks used, their pairs and the estimate.
+struct Attempt {
+    alive: Vec<(Track, Option<Measurement>)>,
+    pairs: Vec<(usize, Correspondence)>,
+    corrs: Vec<Correspondence>,
+    estimate: Option<crate::motion::MotionEstimate>,
+}
+
 /// Observations fused into a map point at most; later ones only serve tracking (keeps the
 /// point's covariance from collapsing on correlated errors).
 const MAX_FUSED_OBSERVATIONS: u32 = 20;
@@ -282,65 +290,41 @@ impl VisualOdometry {
             })
             .collect();
         let tracked = track(&prev, &pyr, &from, &guesses, &self.config)?;
-        let mut moved: Vec<Track> = self
+        let candidates: Vec<(Track, crate::klt::Tracked)> = self
             .tracks
             .drain(..)
             .zip(tracked)
-            .filter_map(|(t, p)| Some(Track { px: p?, ..t }))
+            .filter_map(|(t, p)| Some((t, p?)))
             .collect();
-        if let Some(max_corr) = self.config.realign_max_correction_px {
-            moved = self.realign(moved, &pyr, max_corr)?;
-        }
-        let alive: Vec<(Track, Option<Measurement>)> = moved
-            .into_iter()
-            .map(|t| {
-                let m = measure(&frame.depth_m, &self.camera, t.px.x, t.px.y, &self.config);
-                (t, m)
-            })
-            .collect();
-        let mut alive = alive;
         timing.track_s = start.elapsed().as_secs_f64();
 
-        // 2. Pose against the world points.
-        let pairs: Vec<(usize, Correspondence)> = alive
-            .iter()
-            .enumerate()
-            .filter_map(|(i, (t, m))| {
-                Some((
-                    i,
-                    Correspondence {
-                        reference: t.point?.world,
-                        current: (*m)?,
-                    },
-                ))
-            })
-            .collect();
-        let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
-        let t_r = Instant::now();
-        let cfg = &self.config;
-        let params = crate::motion::MotionParams {
-            refine_iterations: 0,
-            ..crate::motion::MotionParams::from_config(cfg)
-        };
-        let est = estimate(&corrs, &params, &mut self.rng);
-        timing.ransac_s = t_r.elapsed().as_secs_f64();
-        let t_f = Instant::now();
-        let est = est.map(|e| {
-            let (pose, info, chi2) = crate::motion::refine(
-                &corrs,
-                &e.inliers,
-                e.ref_from_cur,
-                cfg.refine_iterations,
-                cfg.model_noise_m,
-            );
-            crate::motion::MotionEstimate {
-                ref_from_cur: pose,
-                information: info,
-                mean_chi2: chi2,
-                ..e
+        // 2. Pose against the world points: strict tracks first, relaxed ones if needed.
+        let cfg = self.config.clone();
+        let mut attempt = self.attempt(
+            frame,
+            &pyr,
+            &candidates,
+            cfg.fb_max_error_px,
+            cfg.realign_max_correction_px,
+            &mut timing,
+        )?;
+        let enough = |a: &Attempt| a.estimate.is_some() && a.corrs.len() >= 3 * cfg.min_inliers;
+        if !enough(&attempt) {
+            if let Some(relaxed) = cfg.relaxed_fb_max_error_px {
+                let second = self.attempt(frame, &pyr, &candidates, relaxed, None, &mut timing)?;
+                if second.estimate.as_ref().map_or(0, |e| e.inlier_count)
+                    > attempt.estimate.as_ref().map_or(0, |e| e.inlier_count)
+                {
+                    attempt = second;
+                }
             }
-        });
-        timing.refine_s = t_f.elapsed().as_secs_f64();
+        }
+        let Attempt {
+            mut alive,
+            pairs,
+            corrs,
+            estimate: est,
+        } = attempt;
 
         // 3. Accept or fall back.
         let mut status = TrackingStatus::Tracked;
@@ -443,6 +427,85 @@ impl VisualOdometry {
             information,
             timing,
             keyframe_features,
+        })
+    }
+
+    /// Tracks that pass `fb_max` (and re-alignment, when given), measured in 3-D, paired with
+    /// their world points, and the motion estimated from them.
+    #[allow(clippy::too_many_arguments)]
+    fn attempt(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &Pyramid,
+        candidates: &[(Track, crate::klt::Tracked)],
+        fb_max: f32,
+        realign: Option<f32>,
+        timing: &mut StageTimes,
+    ) -> Result<Attempt, FrontendError> {
+        let t0 = Instant::now();
+        let mut moved: Vec<Track> = candidates
+            .iter()
+            .filter(|(_, p)| p.fb_error_px <= fb_max)
+            .map(|(t, p)| Track {
+                px: p.px,
+                ..t.clone()
+            })
+            .collect();
+        if let Some(max_corr) = realign {
+            moved = self.realign(moved, pyr, max_corr)?;
+        }
+        let alive: Vec<(Track, Option<Measurement>)> = moved
+            .into_iter()
+            .map(|t| {
+                let m = measure(&frame.depth_m, &self.camera, t.px.x, t.px.y, &self.config);
+                (t, m)
+            })
+            .collect();
+        let pairs: Vec<(usize, Correspondence)> = alive
+            .iter()
+            .enumerate()
+            .filter_map(|(i, (t, m))| {
+                Some((
+                    i,
+                    Correspondence {
+                        reference: t.point?.world,
+                        current: (*m)?,
+                    },
+                ))
+            })
+            .collect();
+        let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
+        timing.track_s += t0.elapsed().as_secs_f64();
+        let cfg = &self.config;
+        let t_r = Instant::now();
+        let params = crate::motion::MotionParams {
+            refine_iterations: 0,
+            ..crate::motion::MotionParams::from_config(cfg)
+        };
+        let est = estimate(&corrs, &params, &mut self.rng);
+        timing.ransac_s += t_r.elapsed().as_secs_f64();
+        let t_f = Instant::now();
+        let est = est.map(|e| {
+            let (pose, info, chi2) = crate::motion::refine(
+                &corrs,
+                &e.inliers,
+                e.ref_from_cur,
+                cfg.refine_iterations,
+                cfg.model_noise_m,
+            );
+            crate::motion::MotionEstimate {
+                ref_from_cur: pose,
+                information: info,
+                mean_chi2: chi2,
+                ..e
+            }
+        });
+        timing.refine_s += t_f.elapsed().as_secs_f64();
+        Ok(Attempt {
+            alive,
+            pairs,
+            corrs,
+            estimate: est,
         })
     }
 

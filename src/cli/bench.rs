@@ -17,6 +17,67 @@ pub enum BenchCommand {
     Eval(EvalBenchArgs),
     /// Rendering speed of the synthetic generator at 640x480, without and with motion blur.
     Synth(SynthBenchArgs),
+    /// Visual odometry speed and accuracy on a sequence decoded up front (PNG decoding timed
+    /// separately), median of several runs.
+    Vo(VoBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct VoBenchArgs {
+    /// Sequence folder (TUM layout).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Camera preset or file [default: from the folder].
+    #[arg(long)]
+    camera: Option<String>,
+    /// Runs (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// OpenCV threads.
+    #[arg(long, default_value_t = 2)]
+    threads: usize,
+    /// Python of a throwaway venv with pyorbslam3 and evo: also run ORB-SLAM3 on the same
+    /// frames in this session through ../shared/tools/peers/orbslam3_tum.py (never a
+    /// project dependency) and report both.
+    #[arg(long, value_name = "PYTHON")]
+    orbslam3: Option<PathBuf>,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs the ORB-SLAM3 peer harness and returns its summary JSON (last stdout line).
+fn orbslam3_summary(
+    python: &Path,
+    dataset: &Path,
+    camera: &str,
+    runs: usize,
+) -> Result<serde_json::Value> {
+    let harness = stride_datasets::data_root::shared_data_dir()
+        .map(|d| d.join("../tools/peers/orbslam3_tum.py"))
+        .filter(|p| p.is_file())
+        .context("the ORB-SLAM3 harness ../shared/tools/peers/orbslam3_tum.py was not found")?;
+    let out_dir = std::env::temp_dir().join(format!("stride-orbslam3-{}", std::process::id()));
+    let out = std::process::Command::new(python)
+        .arg(&harness)
+        .arg(dataset)
+        .args(["--camera", camera, "--repeat", &runs.to_string(), "--out"])
+        .arg(&out_dir)
+        .output()
+        .with_context(|| format!("running {}", python.display()))?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let last = text.lines().last().unwrap_or("");
+    if !out.status.success() {
+        bail!(
+            "the ORB-SLAM3 harness failed ({}): {}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
+    }
+    serde_json::from_str(last).with_context(|| format!("parsing the harness output: {last}"))
 }
 
 #[derive(Debug, Args)]
@@ -56,7 +117,150 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
     match cmd {
         BenchCommand::Eval(a) => bench_eval(a),
         BenchCommand::Synth(a) => bench_synth(a),
+        BenchCommand::Vo(a) => bench_vo(a),
     }
+}
+
+fn bench_vo(a: VoBenchArgs) -> Result<()> {
+    use stride_datasets::tum::{AssociationOptions, TumSequence};
+    use stride_frontend::{VisualOdometry, VoConfig};
+    if a.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let seq = TumSequence::open(
+        &a.dataset,
+        a.camera.as_deref(),
+        AssociationOptions::default(),
+    )?;
+    stride_frontend::set_opencv_threads(a.threads)?;
+    let mut frames = Vec::with_capacity(seq.len());
+    let mut decode = Vec::with_capacity(seq.len());
+    for i in 0..seq.len() {
+        let t = Instant::now();
+        match seq.load_frame(i) {
+            Ok(f) => {
+                decode.push(t.elapsed().as_secs_f64());
+                frames.push(f);
+            }
+            Err(e) => tracing::warn!("frame {i} skipped: {e}"),
+        }
+    }
+    let (mut fps, mut ate_rmse, mut frame_ms) = (Vec::new(), Vec::new(), Vec::new());
+    let mut first: Option<Trajectory> = None;
+    let mut repeatable = true;
+    for _ in 0..a.runs {
+        let mut vo = VisualOdometry::new(seq.camera.camera, VoConfig::default())?;
+        let mut traj = Trajectory::new();
+        let t0 = Instant::now();
+        for f in &frames {
+            let r = vo.process(f)?;
+            frame_ms.push(r.timing.total_s * 1e3);
+            traj.push(r.t_s, r.world_from_camera)?;
+        }
+        fps.push(frames.len() as f64 / t0.elapsed().as_secs_f64());
+        if let Some(gt) = &seq.groundtruth {
+            ate_rmse.push(
+                ate(
+                    gt,
+                    &traj,
+                    &AteOptions {
+                        align: Align::Se3,
+                        ..AteOptions::for_preset(Preset::Evo)
+                    },
+                )?
+                .trans_m
+                .rmse,
+            );
+        }
+        match &first {
+            None => first = Some(traj),
+            Some(f) => repeatable &= *f == traj,
+        }
+    }
+    let fps_range = (
+        fps.iter().copied().fold(f64::INFINITY, f64::min),
+        fps.iter().copied().fold(0.0, f64::max),
+    );
+    let ate_range = (
+        ate_rmse.iter().copied().fold(f64::INFINITY, f64::min),
+        ate_rmse.iter().copied().fold(0.0, f64::max),
+    );
+    let orb = match &a.orbslam3 {
+        Some(py) => {
+            let camera = match (&a.camera, &seq.camera_source) {
+                (Some(c), _) => c.clone(),
+                (None, stride_datasets::tum::CameraSource::FolderName(p)) => (*p).to_owned(),
+                _ => bail!("--orbslam3 needs --camera fr1|fr2|fr3 for this folder"),
+            };
+            Some(orbslam3_summary(py, &a.dataset, &camera, a.runs)?)
+        }
+        None => None,
+    };
+    let stat = |v: &Option<serde_json::Value>, k: &str, s: &str| {
+        v.as_ref()
+            .and_then(|j| j.get(k))
+            .and_then(|x| x.get(s))
+            .and_then(|x| x.as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    let (fps_med, decode_med, frame_med) = (median(fps), median(decode) * 1e3, median(frame_ms));
+    let have_gt = !ate_rmse.is_empty();
+    let ate_med = if have_gt { median(ate_rmse) } else { f64::NAN };
+    if a.json {
+        crate::outln!(
+            "{}",
+            json!({"frames": frames.len(), "runs": a.runs, "fps_median": fps_med, "fps_min": fps_range.0, "fps_max": fps_range.1, "frame_ms_median": frame_med, "decode_ms_median": decode_med, "ate_rmse_median": ate_med, "repeatable": repeatable, "orbslam3": orb})
+        )?;
+        return Ok(());
+    }
+    crate::outln!(
+        "{} frames of {}, {} runs, {} OpenCV thread(s)",
+        frames.len(),
+        a.dataset.display(),
+        a.runs,
+        a.threads
+    )?;
+    crate::outln!("VO: {fps_med:.1} frames/s median (range {:.1}-{:.1}), {frame_med:.2} ms/frame median; PNG decoding (excluded) {decode_med:.2} ms/frame", fps_range.0, fps_range.1)?;
+    if have_gt {
+        crate::outln!("ATE rmse {ate_med:.4} m (evo, SE(3)); runs identical: {repeatable}")?;
+    }
+    if orb.is_some() {
+        let (ofps, oate) = (
+            stat(&orb, "fps_track", "median"),
+            stat(&orb, "ate_rmse_final", "median"),
+        );
+        crate::outln!(
+            "{:<28}{:>16}{:>20}{:>12}",
+            "",
+            "ATE rmse (m)",
+            "frames/s",
+            "lost"
+        )?;
+        crate::outln!(
+            "{:<28}{:>16}{:>20}{:>12}",
+            "stride VO",
+            format!("{ate_med:.4} [{:.4}-{:.4}]", ate_range.0, ate_range.1),
+            format!("{fps_med:.1} [{:.0}-{:.0}]", fps_range.0, fps_range.1),
+            "-"
+        )?;
+        crate::outln!(
+            "{:<28}{:>16}{:>20}{:>12}",
+            "ORB-SLAM3 (full SLAM)",
+            format!(
+                "{oate:.4} [{:.4}-{:.4}]",
+                stat(&orb, "ate_rmse_final", "min"),
+                stat(&orb, "ate_rmse_final", "max")
+            ),
+            format!(
+                "{ofps:.1} [{:.0}-{:.0}]",
+                stat(&orb, "fps_track", "min"),
+                stat(&orb, "fps_track", "max")
+            ),
+            format!("{:.0}", stat(&orb, "lost_frames", "median"))
+        )?;
+        crate::outln!("stride / ORB-SLAM3 frame rate: {:.2} (medians of {} runs each, same session; ORB-SLAM3 tracking time per frame, stride odometry time, decoding excluded for both)", fps_med / ofps, a.runs)?;
+    }
+    Ok(())
 }
 
 fn bench_synth(a: SynthBenchArgs) -> Result<()> {
