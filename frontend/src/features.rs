@@ -9,6 +9,14 @@ use opencv::features2d::{
 use opencv::prelude::*;
 use stride_core::image::GrayImage;
 
+/// An owned OpenCV copy of a grey image (8-bit, one channel).
+pub fn gray_mat(gray: &GrayImage) -> Result<Mat, FrontendError> {
+    Ok(
+        Mat::new_rows_cols_with_data(gray.height() as i32, gray.width() as i32, gray.as_slice())?
+            .try_clone()?,
+    )
+}
+
 /// A 256-bit ORB descriptor.
 pub type OrbDescriptor = [u8; 32];
 
