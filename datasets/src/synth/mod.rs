@@ -92,6 +92,12 @@ pub struct SynthConfig {
     pub start_time_s: f64,
     /// Number of objects (boxes) placed around the path.
     pub objects: usize,
+    /// Rolling-shutter readout time of the colour camera (s): top to bottom row. 0 for a
+    /// global shutter.
+    pub rolling_shutter_s: f64,
+    /// Relative amplitude of the frame-to-frame exposure (gain) variation of an
+    /// auto-exposing camera.
+    pub exposure_flicker: f64,
 }
 
 impl Default for SynthConfig {
@@ -127,6 +133,8 @@ impl Default for SynthConfig {
             read_noise_dn: 1.5,
             start_time_s: 1_700_000_000.0,
             objects: 14,
+            rolling_shutter_s: 0.02,
+            exposure_flicker: 0.03,
         }
     }
 }
@@ -228,6 +236,18 @@ impl SynthConfig {
                 }
             }
         }
+        if !(self.rolling_shutter_s.is_finite() && (0.0..=0.1).contains(&self.rolling_shutter_s)) {
+            return bad(format!(
+                "rolling shutter readout {} s: must be between 0 and 0.1",
+                self.rolling_shutter_s
+            ));
+        }
+        if !(self.exposure_flicker.is_finite() && (0.0..=0.5).contains(&self.exposure_flicker)) {
+            return bad(format!(
+                "exposure flicker {}: must be between 0 and 0.5",
+                self.exposure_flicker
+            ));
+        }
         if !(self.read_noise_dn.is_finite() && self.read_noise_dn >= 0.0) {
             return bad(format!(
                 "read noise {}: must be non-negative",
@@ -293,7 +313,7 @@ impl Synth {
     /// unreadable terrain images (naming the file).
     pub fn new(config: SynthConfig) -> Result<Self, SynthError> {
         config.validate()?;
-        let motion = Motion::new(config.motion);
+        let motion = Motion::with_seed(config.motion, config.seed);
         let path = motion.path_samples(config.duration_s(), 400);
         let grid = match &config.terrain {
             TerrainSource::Image {
@@ -395,22 +415,58 @@ impl Synth {
         if n % 2 == 0 {
             n += 1;
         }
-        let geom = renderer.render(&pose);
-        let mut color = geom.color.clone();
+        // Rolling shutter: row r of a sub-frame centred at tc is exposed at
+        // tc - readout / 2 + readout * r / (rows - 1). Depth stays global-shutter, so during
+        // motion colour and depth disagree slightly, as on a real sensor.
+        let rs = cfg.rolling_shutter_s;
+        let rows = self.camera.height.max(2) as usize;
+        let row_poses = |tc: f64| -> Vec<Isometry3<f64>> {
+            if rs <= 0.0 {
+                vec![self.state(tc).world_from_camera]
+            } else {
+                (0..rows)
+                    .map(|r| {
+                        self.state(tc - rs / 2.0 + rs * r as f64 / (rows - 1) as f64)
+                            .world_from_camera
+                    })
+                    .collect()
+            }
+        };
+        let pad = if rs > 0.0 {
+            let a = self.state(t - (e + rs) / 2.0).world_from_camera;
+            let b = self.state(t + (e + rs) / 2.0).world_from_camera;
+            renderer.image_motion_px(&probes, &a, &b) + 2.0
+        } else {
+            motion_px + 2.0
+        };
+        let geom = renderer.render(&pose, rs <= 0.0);
+        let mut color = if rs > 0.0 {
+            vec![[0.0f32; 3]; geom.color.len()]
+        } else {
+            geom.color.clone()
+        };
         for k in 0..n {
-            if k == n / 2 {
-                continue;
+            if k == n / 2 && rs <= 0.0 {
+                continue; // the global-shutter centre sub-frame came with the depth
             }
             let tk = t - e / 2.0 + (k as f64 + 0.5) * e / n as f64;
-            renderer.accumulate_color(&self.state(tk).world_from_camera, &mut color);
+            renderer.accumulate_color(&row_poses(tk), pad, &mut color);
         }
-        if n > 1 {
-            let inv = 1.0 / n as f32;
-            for c in &mut color {
-                c[0] *= inv;
-                c[1] *= inv;
-                c[2] *= inv;
-            }
+        let gain = 1.0
+            + cfg.exposure_flicker
+                * (std::f64::consts::TAU * 0.37 * t + (cfg.seed % 628) as f64 / 100.0).sin()
+            + 0.25
+                * cfg.exposure_flicker
+                * stride_core::rng::hash_normal(stride_core::rng::key(&[
+                    cfg.seed,
+                    index as u64,
+                    0x6A17,
+                ]));
+        let scale = (gain / n as f64) as f32;
+        for c in &mut color {
+            c[0] *= scale;
+            c[1] *= scale;
+            c[2] *= scale;
         }
         let rgb = rgb_sensor(
             &color,
@@ -667,6 +723,8 @@ fn generate_into(
         "objects": cfg.objects,
         "depth_noise": cfg.depth_noise,
         "read_noise_dn": cfg.read_noise_dn,
+        "rolling_shutter_s": cfg.rolling_shutter_s,
+        "exposure_flicker": cfg.exposure_flicker,
         "gait_cycle_hz": synth.motion().cycle_hz(),
         "gait_step_hz": synth.motion().step_hz(),
         "world_frame": "z up; origin at the robot's start, x along its initial heading",

@@ -54,6 +54,9 @@ pub struct MotionConfig {
     pub camera_tilt_deg: f64,
     /// Multiplies every gait-induced oscillation (1 = defaults after Messor II).
     pub shake: f64,
+    /// Step-to-step variation of the touchdown vibrations: each touchdown's amplitude is
+    /// scaled by a random factor in `[1 - v, 1 + v]` (real steps are not identical).
+    pub variation: f64,
 }
 
 impl Default for MotionConfig {
@@ -66,6 +69,7 @@ impl Default for MotionConfig {
             camera_height_m: 0.4,
             camera_tilt_deg: 25.0,
             shake: 1.0,
+            variation: 0.5,
         }
     }
 }
@@ -154,14 +158,20 @@ const REFERENCE_SPEED_M_S: f64 = 0.15;
 /// The robot's motion over time.
 pub struct Motion {
     config: MotionConfig,
+    seed: u64,
     p: GaitParams,
     trunk_from_camera: Isometry3<f64>,
     cycle_hz: f64,
 }
 
 impl Motion {
-    /// The motion for a configuration.
+    /// The motion for a configuration (step variation drawn with seed 0).
     pub fn new(config: MotionConfig) -> Self {
+        Self::with_seed(config, 0)
+    }
+
+    /// The motion for a configuration, with the step-to-step variation drawn from `seed`.
+    pub fn with_seed(config: MotionConfig, seed: u64) -> Self {
         let p = params(config.gait);
         let tilt = config.camera_tilt_deg.to_radians();
         let (s, c) = tilt.sin_cos();
@@ -180,6 +190,7 @@ impl Motion {
         let cycle_hz = feet_speed / p.cycle_length_m;
         Self {
             config,
+            seed,
             p,
             trunk_from_camera,
             cycle_hz,
@@ -312,7 +323,15 @@ impl Motion {
         for (k, &td) in p.touchdowns.iter().enumerate() {
             let since_phase = (phase - td).rem_euclid(1.0);
             let since_s = since_phase / self.cycle_hz;
-            let env = (-since_s / 0.06).exp() * amp;
+            // Which touchdown this is (cycle number), for its random amplitude.
+            let cycle = (self.cycle_hz * t - since_phase - td).round() as i64;
+            let u = stride_core::rng::hash_uniform(stride_core::rng::key(&[
+                self.seed,
+                cycle as u64,
+                k as u64,
+            ]));
+            let factor = 1.0 + self.config.variation * (2.0 * u - 1.0);
+            let env = (-since_s / 0.06).exp() * amp * factor;
             let osc = (TAU * 9.0 * since_s).sin();
             let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
             pitch += p.impact_rad * env * osc;

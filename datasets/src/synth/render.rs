@@ -36,6 +36,19 @@ pub struct DepthNoise {
     pub edge_dropout: f64,
     /// Probability that an edge pixel is a flying pixel (between foreground and background).
     pub flying_pixels: f64,
+    /// Offset (px) between where the depth is measured and the colour pixel it is
+    /// registered to: the residual of the sensor's depth-to-colour registration.
+    pub registration_offset_px: [f64; 2],
+    /// Relative depth bias growing with the squared distance from the image centre
+    /// (normalised to 1 at the corners), as the Kinect's depth distortion.
+    pub bias_radial: f64,
+    /// Amplitude of a smooth, static relative depth bias field across the image.
+    pub bias_field: f64,
+    /// Fraction of the noise variance shared by blocks of `correlated_block_px` pixels
+    /// (structured-light depth noise is spatially correlated).
+    pub correlated_fraction: f64,
+    /// Side of the blocks sharing noise (px).
+    pub correlated_block_px: usize,
 }
 
 impl Default for DepthNoise {
@@ -50,6 +63,11 @@ impl Default for DepthNoise {
             edge_rel: 0.04,
             edge_dropout: 0.5,
             flying_pixels: 0.1,
+            registration_offset_px: [0.6, 0.3],
+            bias_radial: 0.004,
+            bias_field: 0.003,
+            correlated_fraction: 0.5,
+            correlated_block_px: 4,
         }
     }
 }
@@ -151,8 +169,9 @@ impl<'a> Renderer<'a> {
         }
     }
 
-    /// Traces every pixel from `world_from_camera`: depth, incidence and colour.
-    pub fn render(&self, world_from_camera: &Isometry3<f64>) -> Geometry {
+    /// Traces every pixel from `world_from_camera`: depth, incidence and (when `with_color`)
+    /// colour; without colour the colour buffer is left black and shading is skipped.
+    pub fn render(&self, world_from_camera: &Isometry3<f64>, with_color: bool) -> Geometry {
         let n = self.rays.len();
         let w = self.camera.width as usize;
         let cand = self.scene.screen_boxes(&self.camera, world_from_camera);
@@ -169,7 +188,7 @@ impl<'a> Renderer<'a> {
             .for_each(|(row, ((dz, ci), col))| {
                 for k in 0..w {
                     let (z, c, rgb) =
-                        self.trace_pixel(world_from_camera, o, row * w + k, &cand, true);
+                        self.trace_pixel(world_from_camera, o, row * w + k, &cand, with_color);
                     dz[k] = z;
                     ci[k] = c;
                     col[k] = rgb;
@@ -182,15 +201,27 @@ impl<'a> Renderer<'a> {
         }
     }
 
-    /// Colour only, added into `acc` (for averaging sub-frames).
-    pub fn accumulate_color(&self, world_from_camera: &Isometry3<f64>, acc: &mut [[f32; 3]]) {
+    /// Colour only, added into `acc` (for averaging sub-frames). `row_poses` holds one
+    /// `world_from_camera` per image row (a rolling shutter exposes rows at different times)
+    /// or a single pose for all rows; `pad_px` widens the objects' screen boxes to cover the
+    /// rows' motion.
+    pub fn accumulate_color(
+        &self,
+        row_poses: &[Isometry3<f64>],
+        pad_px: f64,
+        acc: &mut [[f32; 3]],
+    ) {
         let w = self.camera.width as usize;
-        let cand = self.scene.screen_boxes(&self.camera, world_from_camera);
-        let o = world_from_camera.translation.vector;
-        let o = [o.x, o.y, o.z];
+        let Some(mid) = row_poses.get(row_poses.len() / 2) else {
+            return;
+        };
+        let cand = self.scene.screen_boxes_padded(&self.camera, mid, pad_px);
         acc.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
+            let pose = row_poses.get(row).or(row_poses.first()).unwrap_or(mid);
+            let o = pose.translation.vector;
+            let o = [o.x, o.y, o.z];
             for (k, px) in out.iter_mut().enumerate() {
-                let (_, _, rgb) = self.trace_pixel(world_from_camera, o, row * w + k, &cand, true);
+                let (_, _, rgb) = self.trace_pixel(pose, o, row * w + k, &cand, true);
                 px[0] += rgb[0];
                 px[1] += rgb[1];
                 px[2] += rgb[2];
@@ -261,16 +292,25 @@ pub fn depth_sensor(
     let h = n / width.max(1);
     let mut out = vec![0u16; n];
     let frame_key = key(&[seed, frame, 0xDE97]);
+    let bias_seed = (seed as u32) ^ 0xB1A5;
     out.par_chunks_mut(width)
         .enumerate()
         .for_each(|(row, dst)| {
             for (col, px) in dst.iter_mut().enumerate() {
-                let i = row * width + col;
+                // Misregistration: the depth comes from a slightly offset point of the image.
+                let sc = (col as f64 + model.registration_offset_px[0])
+                    .round()
+                    .clamp(0.0, width as f64 - 1.0) as usize;
+                let sr = (row as f64 + model.registration_offset_px[1])
+                    .round()
+                    .clamp(0.0, h as f64 - 1.0) as usize;
+                let i = sr * width + sc;
+                let pixel = row * width + col;
                 let z = f64::from(geom.depth_z.get(i).copied().unwrap_or(0.0));
                 if z <= 0.0 {
                     continue;
                 }
-                let k = mix64(frame_key ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                let k = mix64(frame_key ^ (pixel as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
                 let cos = f64::from(geom.cos_inc.get(i).copied().unwrap_or(0.0));
                 if cos < model.grazing_cos {
                     continue;
@@ -284,7 +324,7 @@ pub fn depth_sensor(
                 let mut far = z;
                 let mut edge = false;
                 for (dr, dc) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
-                    let (r2, c2) = (row as i64 + dr, col as i64 + dc);
+                    let (r2, c2) = (sr as i64 + dr, sc as i64 + dc);
                     if r2 < 0 || c2 < 0 || r2 >= h as i64 || c2 >= width as i64 {
                         continue;
                     }
@@ -317,8 +357,32 @@ pub fn depth_sensor(
                         zm = z + (far.min(model.max_range_m) - z) * f;
                     }
                 }
-                // Axial noise, then disparity quantisation.
-                zm += model.sigma_coeff_per_m * zm * zm * hash_normal_fast(k ^ 4);
+                // Static bias: radial distortion plus a smooth field.
+                let (nx, ny) = (
+                    (col as f64 - width as f64 / 2.0) / (width as f64 / 2.0),
+                    (row as f64 - h as f64 / 2.0) / (h as f64 / 2.0),
+                );
+                let bias = model.bias_radial * (nx * nx + ny * ny) / 2.0
+                    + model.bias_field
+                        * super::texture::value_noise(
+                            bias_seed,
+                            col as f64 / 160.0,
+                            row as f64 / 120.0,
+                        );
+                zm *= 1.0 + bias;
+                // Axial noise, part of it shared by a block of pixels, then disparity
+                // quantisation.
+                let block = model.correlated_block_px.max(1);
+                let kb = mix64(
+                    frame_key
+                        ^ 0xB10C
+                        ^ ((((row / block) as u64) << 20) | (col / block) as u64)
+                            .wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                );
+                let f = model.correlated_fraction.clamp(0.0, 1.0);
+                let noise =
+                    (1.0 - f).sqrt() * hash_normal_fast(k ^ 4) + f.sqrt() * hash_normal_fast(kb);
+                zm += model.sigma_coeff_per_m * zm * zm * noise;
                 if model.disparity_subpixel > 0.0 && zm > 0.0 {
                     let d = (model.disparity_bf_px_m / zm * model.disparity_subpixel).round()
                         / model.disparity_subpixel;

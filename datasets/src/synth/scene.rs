@@ -258,6 +258,16 @@ impl Scene {
         camera: &PinholeCamera,
         world_from_camera: &Isometry3<f64>,
     ) -> Vec<ScreenBox> {
+        self.screen_boxes_padded(camera, world_from_camera, 1.0)
+    }
+
+    /// As [`Self::screen_boxes`], with the boxes widened by `pad_px` pixels.
+    pub fn screen_boxes_padded(
+        &self,
+        camera: &PinholeCamera,
+        world_from_camera: &Isometry3<f64>,
+        pad_px: f64,
+    ) -> Vec<ScreenBox> {
         let camera_from_world = world_from_camera.inverse();
         let (w, h) = (f64::from(camera.width), f64::from(camera.height));
         self.boxes
@@ -293,10 +303,10 @@ impl Scene {
                 }
                 let sb = ScreenBox {
                     index,
-                    u0: u0 - 1.0,
-                    v0: v0 - 1.0,
-                    u1: u1 + 1.0,
-                    v1: v1 + 1.0,
+                    u0: u0 - pad_px,
+                    v0: v0 - pad_px,
+                    u1: u1 + pad_px,
+                    v1: v1 + pad_px,
                 };
                 (sb.u1 >= 0.0 && sb.v1 >= 0.0 && sb.u0 < w && sb.v0 < h).then_some(sb)
             })
