@@ -259,6 +259,60 @@ pub fn relief_png(grid: &Grid<f32>, max_side: usize) -> Result<Vec<u8>, String> 
     crate::png_io::encode_rgb(&img)
 }
 
+/// A binary (little-endian) PLY mesh of an elevation grid: one vertex per known cell at
+/// (x, y, height) in the grid's frame, two triangles per square of four known cells.
+pub fn surface_ply(grid: &Grid<f32>) -> Vec<u8> {
+    let g = grid.geometry;
+    let mut index = vec![u32::MAX; g.len()];
+    let mut verts: Vec<[f32; 3]> = Vec::new();
+    for r in 0..g.rows {
+        for c in 0..g.cols {
+            if let Some(h) = grid.get(r, c).filter(|v| !v.is_nan()) {
+                let (x, y) = g.center(r, c);
+                if let Some(slot) = index.get_mut(r * g.cols + c) {
+                    *slot = verts.len() as u32;
+                }
+                verts.push([x as f32, y as f32, h]);
+            }
+        }
+    }
+    let at = |r: usize, c: usize| {
+        index
+            .get(r * g.cols + c)
+            .copied()
+            .filter(|&i| i != u32::MAX)
+    };
+    let mut faces: Vec<[u32; 3]> = Vec::new();
+    for r in 0..g.rows.saturating_sub(1) {
+        for c in 0..g.cols.saturating_sub(1) {
+            if let (Some(a), Some(b), Some(cc), Some(d)) =
+                (at(r, c), at(r, c + 1), at(r + 1, c), at(r + 1, c + 1))
+            {
+                faces.push([a, b, d]);
+                faces.push([a, d, cc]);
+            }
+        }
+    }
+    let mut out = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment stride elevation surface, z up\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\nproperty list uchar uint vertex_indices\nend_header\n",
+        verts.len(),
+        faces.len()
+    )
+    .into_bytes();
+    for v in &verts {
+        for c in v {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for f in &faces {
+        out.push(3);
+        for i in f {
+            out.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -275,6 +329,19 @@ mod tests {
         assert!(back[1].is_nan());
         assert!(decode_npy_f32(b"nope", Path::new("x.npy")).is_err());
         assert!(decode_npy_f32(&bytes[..bytes.len() - 2], Path::new("x.npy")).is_err());
+    }
+
+    #[test]
+    fn ply_counts_vertices_and_faces() {
+        let g = GridGeometry::covering(0.0, 0.0, 0.3, 0.2, 0.1);
+        let mut grid = Grid::filled(g, 1.0f32);
+        *grid.get_mut(0, 0).unwrap() = f32::NAN;
+        let ply = surface_ply(&grid);
+        let text = String::from_utf8_lossy(&ply[..200]);
+        assert!(
+            text.contains("element vertex 5") && text.contains("element face 2"),
+            "{text}"
+        );
     }
 
     #[test]

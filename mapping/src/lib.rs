@@ -1,4 +1,124 @@
-//! stride-mapping: elevation maps (paper 000), 2-D range-sensor maps (paper 003), the
-//! Fankhauser baseline and map metrics.
+//! # stride-mapping
 //!
-//! Empty for now: the mapper is built in its own issue.
+//! Elevation maps for walking robots, in a map frame whose z axis points up:
+//!
+//! * [`stack::StackMapper`]: paper 000's map (voxel stacks with Kalman filters, vitality
+//!   counter, visibility check; median fill on export).
+//! * [`fankhauser::FankhauserMapper`]: the Fankhauser et al. (2014) update (ANYbotics'
+//!   elevation_mapping: per-cell Kalman fusion with Mahalanobis gating and its Kinect noise
+//!   model), the baseline, behind the same [`ElevationMapper`] trait.
+//! * [`input`]: sensor frames (depth images or point clouds with covariances) and the
+//!   sensor models that give each point a height variance.
+//! * [`stereo`]: paper 000's stereo uncertainty model (eqs. 5-9) and stereo artifact filter
+//!   (section 4.1).
+//! * [`metrics`]: MSE against ground truth, coverage, and the performance index (eq. 13).
+//! * [`post`]: the median filter that fills small holes.
+//!
+//! Mapping never depends on the SLAM crates: it takes poses and measurements, so it serves
+//! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
+
+pub mod fankhauser;
+pub mod input;
+pub mod metrics;
+pub mod post;
+pub mod stack;
+pub mod stereo;
+pub mod window;
+
+use input::{Rejections, SensorFrame};
+use stride_core::grid::{Grid, GridGeometry};
+
+/// What one [`ElevationMapper::integrate`] call did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct UpdateStats {
+    /// Measurements that updated the map.
+    pub points_used: usize,
+    /// Measurements dropped because a cell already had too many distinct voxels this frame.
+    pub points_overflow: usize,
+    /// Measurements dropped, by reason.
+    pub rejected: Rejections,
+    /// Columns that lost voxels in the visibility check.
+    pub cells_cleared: usize,
+    /// Wall time of the update (s).
+    pub update_s: f64,
+}
+
+/// An elevation mapper: integrates sensor frames, exports its layers.
+pub trait ElevationMapper {
+    /// A short name for reports (`stack`, `fankhauser`).
+    fn name(&self) -> &'static str;
+    /// Integrates one frame (measurements and the sensor's pose in the map frame).
+    fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats;
+    /// Every cell mapped so far (the moving window and the cells it left behind).
+    fn export(&self) -> MapLayers;
+}
+
+/// A mapper's layers over the bounding box of its cells, in the map frame (z up), NaN where
+/// unknown.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapLayers {
+    /// Height (m).
+    pub elevation: Grid<f32>,
+    /// Height variance (m²).
+    pub variance: Grid<f32>,
+    /// Vitality counter (paper 000; NaN for mappers without one).
+    pub vitality: Grid<f32>,
+    /// Number of frames that updated the cell.
+    pub updates: Grid<f32>,
+}
+
+impl MapLayers {
+    /// Layers from `(world cell (row, col), height, variance, vitality, updates)` tuples
+    /// with cells of `resolution` metres, over their bounding box.
+    pub fn from_cells(
+        resolution: f64,
+        cells: impl Iterator<Item = ((i64, i64), f32, f32, f32, f32)> + Clone,
+    ) -> Self {
+        let (mut r0, mut c0, mut r1, mut c1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
+        for ((r, c), ..) in cells.clone() {
+            r0 = r0.min(r);
+            c0 = c0.min(c);
+            r1 = r1.max(r);
+            c1 = c1.max(c);
+        }
+        if r0 > r1 {
+            (r0, c0, r1, c1) = (0, 0, 0, 0);
+        }
+        let g = GridGeometry {
+            origin_x: c0 as f64 * resolution,
+            origin_y: r0 as f64 * resolution,
+            resolution,
+            rows: (r1 - r0 + 1) as usize,
+            cols: (c1 - c0 + 1) as usize,
+        };
+        let mut layers = Self {
+            elevation: Grid::filled(g, f32::NAN),
+            variance: Grid::filled(g, f32::NAN),
+            vitality: Grid::filled(g, f32::NAN),
+            updates: Grid::filled(g, f32::NAN),
+        };
+        for ((r, c), h, var, vit, upd) in cells {
+            let (rr, cc) = ((r - r0) as usize, (c - c0) as usize);
+            for (layer, v) in [
+                (&mut layers.elevation, h),
+                (&mut layers.variance, var),
+                (&mut layers.vitality, vit),
+                (&mut layers.updates, upd),
+            ] {
+                if let Some(slot) = layer.get_mut(rr, cc) {
+                    *slot = v;
+                }
+            }
+        }
+        layers
+    }
+
+    /// Number of cells with a height.
+    pub fn cells_observed(&self) -> usize {
+        self.elevation
+            .as_slice()
+            .iter()
+            .filter(|v| !v.is_nan())
+            .count()
+    }
+}

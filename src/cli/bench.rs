@@ -20,6 +20,23 @@ pub enum BenchCommand {
     /// Visual odometry speed and accuracy on a sequence decoded up front (PNG decoding timed
     /// separately), median of several runs.
     Vo(VoBenchArgs),
+    /// Elevation-map update time for full depth frames, ours and the Fankhauser baseline,
+    /// frames decoded up front.
+    Map(MapBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct MapBenchArgs {
+    /// Sequence folder with ground-truth poses (TUM layout) [default: a synthetic sequence
+    /// rendered into a temporary folder].
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Frames mapped (the median update time is reported).
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Debug, Args)]
@@ -118,7 +135,101 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Eval(a) => bench_eval(a),
         BenchCommand::Synth(a) => bench_synth(a),
         BenchCommand::Vo(a) => bench_vo(a),
+        BenchCommand::Map(a) => bench_map(a),
     }
+}
+
+fn bench_map(a: MapBenchArgs) -> Result<()> {
+    use stride_datasets::tum::{AssociationOptions, TumSequence};
+    use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
+    use stride_mapping::input::{Cloud, SensorFrame};
+    use stride_mapping::stack::{StackConfig, StackMapper};
+    use stride_mapping::ElevationMapper;
+    let tmp = tempfile::tempdir()?;
+    let dir = match &a.dataset {
+        Some(d) => d.clone(),
+        None => {
+            let d = tmp.path().join("seq");
+            let cfg = stride_datasets::synth::SynthConfig {
+                frames: a.frames,
+                blur: false,
+                ..Default::default()
+            };
+            stride_datasets::synth::generate(&cfg, &d, false, &mut |_, _| {})?;
+            d
+        }
+    };
+    let seq = TumSequence::open(&dir, None, AssociationOptions::default())?;
+    let gt = seq
+        .groundtruth
+        .clone()
+        .context("the sequence has no ground truth poses")?;
+    let mut frames = Vec::new();
+    for i in 0..seq.len().min(a.frames) {
+        let f = seq.load_frame(i)?;
+        if let Some(pose) = gt.interpolate(f.t_depth_s) {
+            frames.push((f, pose));
+        }
+    }
+    if frames.is_empty() {
+        bail!("no frame of {} has a ground-truth pose", dir.display());
+    }
+    let valid: f64 = frames
+        .iter()
+        .map(|(f, _)| f.depth_m.as_slice().iter().filter(|&&z| z > 0.0).count() as f64)
+        .sum::<f64>()
+        / frames.len() as f64;
+    let mut mappers: Vec<Box<dyn ElevationMapper>> = vec![
+        Box::new(StackMapper::new(StackConfig::default())),
+        Box::new(FankhauserMapper::new(FankhauserConfig::default())),
+    ];
+    let mut out = serde_json::Map::new();
+    for m in &mut mappers {
+        let (mut times, mut used) = (Vec::new(), 0usize);
+        for (f, pose) in &frames {
+            let sf = SensorFrame {
+                cloud: Cloud::Depth {
+                    depth_m: &f.depth_m,
+                    camera: &seq.camera.camera,
+                },
+                map_from_sensor: *pose,
+                time_s: f.t_depth_s,
+            };
+            let s = m.integrate(&sf);
+            times.push(s.update_s);
+            used += s.points_used;
+        }
+        let total: f64 = times.iter().sum();
+        let (med, p95) = crate::pipeline::median_p95(times.iter().copied());
+        out.insert(m.name().into(), json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "points_per_s": used as f64 / total}));
+    }
+    if a.json {
+        crate::outln!(
+            "{}",
+            json!({"frames": frames.len(), "pixels_per_frame": frames[0].0.depth_m.as_slice().len(), "valid_depth_per_frame": valid, "threads": rayon::current_num_threads(), "mappers": out})
+        )?;
+        return Ok(());
+    }
+    crate::outln!("{} frames of {} ({} pixels, {:.0} with depth on average), 1 cm cells, 4 x 4 m window, {} threads", frames.len(), dir.display(), frames[0].0.depth_m.as_slice().len(), valid, rayon::current_num_threads())?;
+    let g = |k: &str, f: &str| {
+        out.get(k)
+            .and_then(|v| v.get(f))
+            .and_then(|v| v.as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    for k in ["stack", "fankhauser"] {
+        crate::outln!(
+            "{k:<11} update {:>7.2} ms median, {:>7.2} ms p95, {:.2e} points/s",
+            g(k, "update_ms_median"),
+            g(k, "update_ms_p95"),
+            g(k, "points_per_s")
+        )?;
+    }
+    crate::outln!(
+        "fankhauser / stack update time: {:.2}",
+        g("fankhauser", "update_ms_median") / g("stack", "update_ms_median")
+    )?;
+    Ok(())
 }
 
 fn bench_vo(a: VoBenchArgs) -> Result<()> {

@@ -2,6 +2,7 @@
 
 mod bench;
 mod eval;
+mod map;
 mod run;
 mod synth;
 
@@ -30,6 +31,8 @@ enum Command {
     Eval(eval::EvalCommand),
     /// Run the SLAM pipeline (visual odometry for now) on an RGB-D sequence.
     Run(run::RunArgs),
+    /// Build an elevation map of a sequence from its depth images and known poses.
+    Map(map::MapArgs),
     /// Render a synthetic legged-robot RGB-D sequence with ground truth (TUM layout).
     Synth(synth::SynthArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
@@ -72,5 +75,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(c) => bench::run(c),
         Command::Synth(a) => synth::run(a),
         Command::Run(a) => run::run(a),
+        Command::Map(a) => map::run(a),
     }
 }

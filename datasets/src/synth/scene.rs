@@ -356,8 +356,9 @@ impl Scene {
         best
     }
 
-    /// The true elevation: the highest surface (terrain, object or wall top) at each cell
-    /// centre of the terrain grid (m, world z up).
+    /// The true terrain elevation at each cell centre of the terrain grid (m, world z up),
+    /// NaN under objects and walls: those are obstacles standing up to 2.2 m tall whose tops
+    /// a camera at walking-robot height never sees, so no map can be judged on them.
     pub fn ground_truth_elevation(&self) -> Grid<f32> {
         let mut grid = self.terrain.grid().clone();
         let g = grid.geometry;
@@ -380,7 +381,7 @@ impl Scene {
                     let (x, y) = g.center(r, c);
                     if b.covers(x, y) {
                         if let Some(v) = grid.get_mut(r, c) {
-                            *v = v.max(b.z1 as f32);
+                            *v = f32::NAN;
                         }
                     }
                 }
@@ -441,7 +442,10 @@ mod tests {
         }
         let gt = s.ground_truth_elevation();
         let b = s.boxes[4];
-        assert!((f64::from(gt.at(b.cx, b.cy).unwrap()) - b.z1).abs() < 1e-6);
+        assert!(
+            gt.at(b.cx, b.cy).unwrap().is_nan(),
+            "unobservable object tops are unknown"
+        );
         assert_eq!(gt.at(1.0, 0.0).unwrap(), 0.0);
     }
 }

@@ -1,0 +1,597 @@
+//! What the mappers take: a sensor frame (a depth image or a point cloud with covariances)
+//! with its pose, turned into map-frame heights and height variances by a sensor model.
+
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+use rayon::prelude::*;
+use stride_core::camera::PinholeCamera;
+use stride_core::image::DepthImage;
+use stride_core::uncertainty::PrimeSenseModel;
+
+/// The measurements of one sensor frame.
+#[derive(Debug, Clone, Copy)]
+pub enum Cloud<'a> {
+    /// A depth image (metres along the optical axis, 0 = no return) with its camera.
+    Depth {
+        /// The depth image.
+        depth_m: &'a DepthImage,
+        /// The camera it is registered to.
+        camera: &'a PinholeCamera,
+    },
+    /// Points in the sensor frame (m) with their covariances (m², sensor frame), from any
+    /// SLAM or sensor.
+    Points {
+        /// Points in the sensor frame.
+        points: &'a [Point3<f64>],
+        /// One covariance per point.
+        covariances: &'a [Matrix3<f64>],
+    },
+}
+
+/// One frame for a mapper.
+#[derive(Debug, Clone, Copy)]
+pub struct SensorFrame<'a> {
+    /// The measurements.
+    pub cloud: Cloud<'a>,
+    /// `map_from_sensor`: the sensor pose in the map frame (z up).
+    pub map_from_sensor: Isometry3<f64>,
+    /// Time (s).
+    pub time_s: f64,
+}
+
+/// How a mapper turns a measurement into a height variance in the map frame (m²).
+pub trait HeightModel: Sync {
+    /// Height variance (m²) of a depth pixel of `camera`; `r3` is the map's z axis
+    /// expressed in the sensor frame (the third row of the map-from-sensor rotation).
+    fn pixel_variance(&self, camera: &PinholeCamera, px: &DepthPixel, r3: &Vector3<f64>) -> f64;
+    /// Height variance of a sensor-frame point with the covariance its source gave.
+    fn point_variance(&self, p: &Point3<f64>, cov: &Matrix3<f64>, r3: &Vector3<f64>) -> f64;
+    /// Depth range accepted (m, along the optical axis).
+    fn range_m(&self) -> (f64, f64);
+}
+
+/// A depth measurement at a pixel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthPixel {
+    /// Column (px).
+    pub u: f64,
+    /// Row (px).
+    pub v: f64,
+    /// Undistorted normalised x coordinate (x / z in the camera frame).
+    pub xn: f64,
+    /// Undistorted normalised y coordinate (y / z in the camera frame).
+    pub yn: f64,
+    /// Depth along the optical axis (m).
+    pub d_m: f64,
+}
+
+/// Paper 000's PrimeSense model (eqs. 10-12): the height variance is `r3^T Sigma_p r3` with
+/// `Sigma_p = J diag(sigma_u^2, sigma_v^2, sigma_d^2) J^T`, computed without forming the 3x3
+/// matrix: `sigma_u^2 (r3x d/fx)^2 + sigma_v^2 (r3y d/fy)^2 + sigma_d^2 (r3 . (xn, yn, 1))^2`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PrimeSenseHeight {
+    /// The point model.
+    pub model: PrimeSenseModel,
+    /// Nearest depth used (m).
+    pub min_depth_m: f64,
+    /// Farthest depth used (m).
+    pub max_depth_m: f64,
+}
+
+impl Default for PrimeSenseHeight {
+    fn default() -> Self {
+        Self {
+            model: PrimeSenseModel::default(),
+            min_depth_m: 0.3,
+            max_depth_m: 4.5,
+        }
+    }
+}
+
+impl HeightModel for PrimeSenseHeight {
+    fn pixel_variance(&self, camera: &PinholeCamera, px: &DepthPixel, r3: &Vector3<f64>) -> f64 {
+        let (xn, yn, d) = (px.xn, px.yn, px.d_m);
+        let s = self.model.sigma_d(d);
+        let a = r3.x * d / camera.fx;
+        let b = r3.y * d / camera.fy;
+        let c = r3.x * xn + r3.y * yn + r3.z;
+        self.model.var_u_px2 * a * a + self.model.var_v_px2 * b * b + s * s * c * c
+    }
+
+    fn point_variance(&self, _p: &Point3<f64>, cov: &Matrix3<f64>, r3: &Vector3<f64>) -> f64 {
+        (r3.transpose() * cov * r3)[(0, 0)]
+    }
+
+    fn range_m(&self) -> (f64, f64) {
+        (self.min_depth_m, self.max_depth_m)
+    }
+}
+
+/// Per-frame counts of measurements that were dropped, by reason.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Rejections {
+    /// No return (depth 0) in a depth image.
+    pub no_return: usize,
+    /// NaN or infinite coordinate.
+    pub non_finite: usize,
+    /// Outside the sensor model's depth range.
+    pub out_of_range: usize,
+    /// Zero, negative or non-finite variance.
+    pub bad_variance: usize,
+    /// Outside the map window.
+    pub outside_window: usize,
+    /// The frame's pose was not finite (every point dropped).
+    pub bad_pose: usize,
+}
+
+impl Rejections {
+    /// Adds another frame's counts.
+    pub fn add(&mut self, o: &Rejections) {
+        self.no_return += o.no_return;
+        self.non_finite += o.non_finite;
+        self.out_of_range += o.out_of_range;
+        self.bad_variance += o.bad_variance;
+        self.outside_window += o.outside_window;
+        self.bad_pose += o.bad_pose;
+    }
+
+    /// Points dropped for any reason other than a missing return.
+    pub fn dropped(&self) -> usize {
+        self.non_finite
+            + self.out_of_range
+            + self.bad_variance
+            + self.outside_window
+            + self.bad_pose
+    }
+}
+
+/// A measurement in the map frame: position (m) and height variance (m²).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct MapPoint {
+    /// x (m, map frame).
+    pub x: f64,
+    /// y (m, map frame).
+    pub y: f64,
+    /// Height z (m, map frame, up).
+    pub z: f64,
+    /// Variance of the height (m²).
+    pub var: f64,
+}
+
+/// True when the pose has only finite numbers.
+pub fn pose_is_finite(t: &Isometry3<f64>) -> bool {
+    t.translation.vector.iter().all(|v| v.is_finite())
+        && t.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+/// Undistorted normalised coordinates of every pixel of a camera, computed once.
+#[derive(Debug, Clone, Default)]
+pub struct RayCache {
+    camera: Option<PinholeCamera>,
+    rays: Vec<(f64, f64)>,
+}
+
+impl RayCache {
+    /// The rays of `camera`, recomputed only when the camera changes.
+    pub fn rays(&mut self, camera: &PinholeCamera) -> &[(f64, f64)] {
+        if self.camera.as_ref() != Some(camera) {
+            let (w, h) = (camera.width as usize, camera.height as usize);
+            self.rays = (0..w * h)
+                .into_par_iter()
+                .map(|i| {
+                    let n = camera.normalized_from_pixel(&nalgebra::Point2::new(
+                        (i % w) as f64,
+                        (i / w) as f64,
+                    ));
+                    (n.x, n.y)
+                })
+                .collect();
+            self.camera = Some(*camera);
+        }
+        &self.rays
+    }
+}
+
+/// Why a measurement was dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Reason {
+    NoReturn,
+    NonFinite,
+    OutOfRange,
+    BadVariance,
+}
+
+impl Rejections {
+    fn count(&mut self, r: Reason) {
+        match r {
+            Reason::NoReturn => self.no_return += 1,
+            Reason::NonFinite => self.non_finite += 1,
+            Reason::OutOfRange => self.out_of_range += 1,
+            Reason::BadVariance => self.bad_variance += 1,
+        }
+    }
+}
+
+/// The sensor pose as plain numbers for the per-point transform.
+#[derive(Debug, Clone, Copy)]
+struct Placement {
+    rot: nalgebra::Matrix3<f64>,
+    trans: Vector3<f64>,
+    /// The map's z axis in the sensor frame (third row of the rotation).
+    r3: Vector3<f64>,
+    range: (f64, f64),
+}
+
+impl Placement {
+    fn new(t: &Isometry3<f64>, range: (f64, f64)) -> Self {
+        let rot = t.rotation.to_rotation_matrix().into_inner();
+        Self {
+            rot,
+            trans: t.translation.vector,
+            r3: Vector3::new(rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]),
+            range,
+        }
+    }
+
+    #[inline]
+    fn place(&self, p: Vector3<f64>, var: f64) -> Result<MapPoint, Reason> {
+        if !(var.is_finite() && var > 0.0) {
+            return Err(Reason::BadVariance);
+        }
+        let q = self.rot * p + self.trans;
+        Ok(MapPoint {
+            x: q.x,
+            y: q.y,
+            z: q.z,
+            var,
+        })
+    }
+
+    /// A depth pixel `(u, v)` (px) with undistorted normalised coordinates `(xn, yn)` and
+    /// depth `d` (m).
+    #[inline]
+    fn pixel<M: HeightModel + ?Sized>(
+        &self,
+        model: &M,
+        camera: &PinholeCamera,
+        u: usize,
+        v: usize,
+        (xn, yn): (f64, f64),
+        d: f32,
+    ) -> Result<MapPoint, Reason> {
+        let d = f64::from(d);
+        if d == 0.0 {
+            Err(Reason::NoReturn)
+        } else if !d.is_finite() {
+            Err(Reason::NonFinite)
+        } else if d < self.range.0 || d > self.range.1 {
+            Err(Reason::OutOfRange)
+        } else {
+            self.place(
+                Vector3::new(xn * d, yn * d, d),
+                model.pixel_variance(
+                    camera,
+                    &DepthPixel {
+                        u: u as f64,
+                        v: v as f64,
+                        xn,
+                        yn,
+                        d_m: d,
+                    },
+                    &self.r3,
+                ),
+            )
+        }
+    }
+
+    /// A sensor-frame point with its covariance.
+    #[inline]
+    fn point<M: HeightModel + ?Sized>(
+        &self,
+        model: &M,
+        p: &Point3<f64>,
+        cov: Option<&Matrix3<f64>>,
+    ) -> Result<MapPoint, Reason> {
+        if !p.coords.iter().all(|v| v.is_finite()) {
+            Err(Reason::NonFinite)
+        } else if p.z < self.range.0 || p.z > self.range.1 {
+            Err(Reason::OutOfRange)
+        } else {
+            match cov {
+                Some(c) if c.iter().all(|v| v.is_finite()) => {
+                    self.place(p.coords, model.point_variance(p, c, &self.r3))
+                }
+                _ => Err(Reason::BadVariance),
+            }
+        }
+    }
+}
+
+/// A measurement assigned to a cell of a map window: the cell's storage index, the height
+/// (m, map frame) and its variance (m²).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CellPoint {
+    /// Storage index of the cell in the window.
+    pub cell: u32,
+    /// Height (m, map frame, up).
+    pub z_m: f32,
+    /// Height variance (m²).
+    pub var_m2: f32,
+}
+
+/// Measurements are prepared in this many slices of the input (rows of a depth image), a
+/// number that does not depend on the thread count so that results never do.
+pub const SLICES: usize = 16;
+
+/// One frame's measurements, grouped by band of storage cells (see [`prepare_binned`]).
+#[derive(Debug, Clone, Default)]
+pub struct Binned {
+    /// `[slice][band]`, each list in measurement order.
+    lists: Vec<Vec<Vec<CellPoint>>>,
+    rejections: Vec<Rejections>,
+}
+
+impl Binned {
+    /// The measurements of band `b`, in measurement order (pixel order for depth images).
+    pub fn band(&self, b: usize) -> impl Iterator<Item = &CellPoint> + '_ {
+        self.lists
+            .iter()
+            .flat_map(move |slice| slice.get(b).into_iter().flatten())
+    }
+
+    /// Number of measurements in all bands.
+    pub fn len(&self) -> usize {
+        self.lists.iter().flatten().map(Vec::len).sum()
+    }
+
+    /// True when no measurement landed in the window.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Transforms a frame's measurements into map-frame heights with height variances and
+/// assigns each to its cell: `locate(x, y)` gives the storage index of the cell containing
+/// map-frame `(x, y)` (m) and its band (below `bands`), or `None` outside the window (see
+/// [`crate::window::Window::band_indexer`]). Runs in parallel over [`SLICES`] slices of the input;
+/// within a band the measurements keep their input order. Invalid measurements are
+/// dropped and counted by reason (including `outside_window`).
+pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> + Sync>(
+    frame: &SensorFrame<'_>,
+    model: &M,
+    rays: &mut RayCache,
+    locate: L,
+    bands: usize,
+    out: &mut Binned,
+) -> Rejections {
+    let t = frame.map_from_sensor;
+    out.lists.resize_with(SLICES, Vec::new);
+    out.rejections.clear();
+    out.rejections.resize(SLICES, Rejections::default());
+    for slice in &mut out.lists {
+        slice.resize_with(bands, Vec::new);
+        slice.iter_mut().for_each(Vec::clear);
+    }
+    let n_total = match frame.cloud {
+        Cloud::Depth { depth_m, .. } => depth_m.as_slice().len(),
+        Cloud::Points { points, .. } => points.len(),
+    };
+    if !pose_is_finite(&t) {
+        return Rejections {
+            bad_pose: n_total,
+            ..Default::default()
+        };
+    }
+    let place = Placement::new(&t, model.range_m());
+    let push = |res: Result<MapPoint, Reason>,
+                lists: &mut Vec<Vec<CellPoint>>,
+                rej: &mut Rejections| match res {
+        Ok(p) => match locate(p.x, p.y) {
+            Some((cell, band)) => {
+                if let Some(list) = lists.get_mut(band) {
+                    list.push(CellPoint {
+                        cell: cell as u32,
+                        z_m: p.z as f32,
+                        var_m2: p.var as f32,
+                    });
+                } else {
+                    rej.outside_window += 1;
+                }
+            }
+            None => rej.outside_window += 1,
+        },
+        Err(r) => rej.count(r),
+    };
+    match frame.cloud {
+        Cloud::Depth { depth_m, camera } => {
+            let w = (depth_m.width() as usize).max(1);
+            let h = depth_m.height() as usize;
+            let rays = rays.rays(camera);
+            let rows_per_slice = h.div_ceil(SLICES).max(1);
+            out.lists
+                .par_iter_mut()
+                .zip(out.rejections.par_iter_mut())
+                .enumerate()
+                .for_each(|(s, (lists, rej))| {
+                    for v in (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h) {
+                        let (Some(drow), Some(rrow)) = (
+                            depth_m.as_slice().get(v * w..(v + 1) * w),
+                            rays.get(v * w..(v + 1) * w),
+                        ) else {
+                            continue;
+                        };
+                        for (u, (&d, &ray)) in drow.iter().zip(rrow).enumerate() {
+                            push(place.pixel(model, camera, u, v, ray, d), lists, rej);
+                        }
+                    }
+                });
+        }
+        Cloud::Points {
+            points,
+            covariances,
+        } => {
+            let per_slice = points.len().div_ceil(SLICES).max(1);
+            out.lists
+                .par_iter_mut()
+                .zip(out.rejections.par_iter_mut())
+                .enumerate()
+                .for_each(|(s, (lists, rej))| {
+                    for i in (s * per_slice)..((s + 1) * per_slice).min(points.len()) {
+                        let res = match points.get(i) {
+                            Some(p) => place.point(model, p, covariances.get(i)),
+                            None => Err(Reason::NonFinite),
+                        };
+                        push(res, lists, rej);
+                    }
+                });
+        }
+    }
+    let mut rej = Rejections::default();
+    for r in &out.rejections {
+        rej.add(r);
+    }
+    rej
+}
+
+/// A frame's measurements as map-frame points (`None` where dropped), in input order, with
+/// the counts of what was dropped (`outside_window` stays 0: there is no window here).
+/// For exporting clouds and for tests; the mappers use [`prepare_binned`].
+pub fn to_map_points<M: HeightModel + ?Sized>(
+    frame: &SensorFrame<'_>,
+    model: &M,
+) -> (Vec<Option<MapPoint>>, Rejections) {
+    let mut rej = Rejections::default();
+    let t = frame.map_from_sensor;
+    let n_total = match frame.cloud {
+        Cloud::Depth { depth_m, .. } => depth_m.as_slice().len(),
+        Cloud::Points { points, .. } => points.len(),
+    };
+    if !pose_is_finite(&t) {
+        rej.bad_pose = n_total;
+        return (vec![None; n_total], rej);
+    }
+    let place = Placement::new(&t, model.range_m());
+    let results: Vec<Result<MapPoint, Reason>> = match frame.cloud {
+        Cloud::Depth { depth_m, camera } => {
+            let w = (depth_m.width() as usize).max(1);
+            let rays = RayCache::default().rays(camera).to_vec();
+            depth_m
+                .as_slice()
+                .iter()
+                .enumerate()
+                .map(|(i, &d)| {
+                    place.pixel(
+                        model,
+                        camera,
+                        i % w,
+                        i / w,
+                        rays.get(i).copied().unwrap_or((0.0, 0.0)),
+                        d,
+                    )
+                })
+                .collect()
+        }
+        Cloud::Points {
+            points,
+            covariances,
+        } => points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| place.point(model, p, covariances.get(i)))
+            .collect(),
+    };
+    let pts = results
+        .into_iter()
+        .map(|r| match r {
+            Ok(p) => Some(p),
+            Err(e) => {
+                rej.count(e);
+                None
+            }
+        })
+        .collect();
+    (pts, rej)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn pixel_variance_equals_the_full_covariance_projected_on_z() {
+        let cam = PinholeCamera::new(525.0, 520.0, 319.5, 239.5, 640, 480).unwrap();
+        let model = PrimeSenseHeight::default();
+        let t = Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 0.4),
+            UnitQuaternion::from_euler_angles(-2.0, 0.1, 0.3),
+        );
+        let rot = t.rotation.to_rotation_matrix();
+        let r3 = Vector3::new(rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]);
+        for &(u, v, d) in &[(100.0, 50.0, 1.0), (600.0, 400.0, 3.0), (320.0, 240.0, 2.0)] {
+            let xn = cam.normalized_from_pixel(&nalgebra::Point2::new(u, v));
+            let fast = model.pixel_variance(
+                &cam,
+                &DepthPixel {
+                    u,
+                    v,
+                    xn: xn.x,
+                    yn: xn.y,
+                    d_m: d,
+                },
+                &r3,
+            );
+            let (p, cov) = model.model.point_and_covariance(&cam, u, v, d);
+            let full = model.point_variance(&p, &cov, &r3);
+            assert_relative_eq!(fast, full, max_relative = 1e-12);
+        }
+    }
+
+    #[test]
+    fn bad_measurements_are_dropped_and_counted() {
+        let cam = PinholeCamera::new(10.0, 10.0, 1.5, 1.5, 4, 4).unwrap();
+        let mut depth = DepthImage::filled(4, 4, 1.0);
+        *depth.get_mut(0, 0).unwrap() = 0.0;
+        *depth.get_mut(1, 0).unwrap() = f32::NAN;
+        *depth.get_mut(2, 0).unwrap() = f32::INFINITY;
+        *depth.get_mut(3, 0).unwrap() = 9.0;
+        let frame = SensorFrame {
+            cloud: Cloud::Depth {
+                depth_m: &depth,
+                camera: &cam,
+            },
+            map_from_sensor: Isometry3::identity(),
+            time_s: 0.0,
+        };
+        let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
+        assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 12);
+        assert_eq!((rej.no_return, rej.non_finite, rej.out_of_range), (1, 2, 1));
+        let nan_pose = SensorFrame {
+            map_from_sensor: Isometry3::translation(f64::NAN, 0.0, 0.0),
+            ..frame
+        };
+        let (pts, rej) = to_map_points(&nan_pose, &PrimeSenseHeight::default());
+        assert!(pts.iter().all(|p| p.is_none()) && rej.bad_pose == 16);
+        let points = [
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(0.0, 0.0, 1.0),
+            Point3::new(f64::NAN, 0.0, 1.0),
+        ];
+        let covs = [
+            Matrix3::identity() * 1e-4,
+            Matrix3::zeros(),
+            Matrix3::identity(),
+        ];
+        let frame = SensorFrame {
+            cloud: Cloud::Points {
+                points: &points,
+                covariances: &covs,
+            },
+            map_from_sensor: Isometry3::identity(),
+            time_s: 0.0,
+        };
+        let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
+        assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 1);
+        assert_eq!((rej.bad_variance, rej.non_finite), (1, 1));
+    }
+}

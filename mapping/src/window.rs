@@ -1,0 +1,250 @@
+//! A robot-centred window of map cells that moves without copying.
+//!
+//! Cells have world-fixed integer coordinates `(row, col)`: cell `(r, c)` covers
+//! `x in [(c - 0.5) res, (c + 0.5) res)`, `y in [(r - 0.5) res, (r + 0.5) res)` in the map
+//! frame (z up). The window holds `size x size` of them around a centre; storage is a
+//! circular buffer indexed by `(r mod size, c mod size)`, as grid_map does, so moving the
+//! window only resets the cells that leave it (after handing them to the caller).
+
+/// The integer cell coordinate of `v` (m) for cells of `1 / inv` metres centred on
+/// multiples of the cell size: `floor(v inv + 0.5)`, so cell `k` covers `[k - 0.5, k + 0.5)`.
+#[inline]
+fn cell_coord(v: f64, inv: f64) -> i64 {
+    (v * inv + 0.5).floor() as i64
+}
+
+/// Circular-buffer storage of a square window of cells.
+#[derive(Debug, Clone)]
+pub struct Window<T> {
+    size: usize,
+    resolution: f64,
+    /// World cell coordinates of the window's lowest row and column.
+    origin: (i64, i64),
+    cells: Vec<T>,
+}
+
+impl<T: Clone + Default> Window<T> {
+    /// A window of `size x size` cells of `resolution` metres, its lowest corner cell at
+    /// world cell `origin` (row, col).
+    pub fn new(size: usize, resolution: f64, origin: (i64, i64)) -> Self {
+        Self {
+            size: size.max(1),
+            resolution,
+            origin,
+            cells: vec![T::default(); size.max(1) * size.max(1)],
+        }
+    }
+
+    /// Side in cells.
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    /// Cell size (m).
+    pub fn resolution(&self) -> f64 {
+        self.resolution
+    }
+
+    /// World cell coordinates (row, col) of the lowest corner cell.
+    pub fn origin(&self) -> (i64, i64) {
+        self.origin
+    }
+
+    /// The world cell (row, col) containing map-frame `(x, y)`.
+    pub fn world_cell(&self, x: f64, y: f64) -> (i64, i64) {
+        let inv = 1.0 / self.resolution;
+        (cell_coord(y, inv), cell_coord(x, inv))
+    }
+
+    /// Centre (x, y) of a world cell (m).
+    pub fn cell_center(&self, cell: (i64, i64)) -> (f64, f64) {
+        (
+            cell.1 as f64 * self.resolution,
+            cell.0 as f64 * self.resolution,
+        )
+    }
+
+    /// True when the world cell lies inside the window.
+    pub fn contains(&self, cell: (i64, i64)) -> bool {
+        let (r, c) = (cell.0 - self.origin.0, cell.1 - self.origin.1);
+        r >= 0 && c >= 0 && (r as usize) < self.size && (c as usize) < self.size
+    }
+
+    /// Storage index of a world cell inside the window.
+    pub fn index(&self, cell: (i64, i64)) -> Option<usize> {
+        self.contains(cell).then(|| {
+            let n = self.size as i64;
+            (cell.0.rem_euclid(n) * n + cell.1.rem_euclid(n)) as usize
+        })
+    }
+
+    /// The world cell stored at a storage index.
+    pub fn cell_of_index(&self, index: usize) -> (i64, i64) {
+        let n = self.size as i64;
+        let (sr, sc) = ((index / self.size) as i64, (index % self.size) as i64);
+        // The unique world row r with r mod n = sr inside [origin, origin + n).
+        let r = self.origin.0 + (sr - self.origin.0).rem_euclid(n);
+        let c = self.origin.1 + (sc - self.origin.1).rem_euclid(n);
+        (r, c)
+    }
+
+    /// A fast indexer for many points: storage index of the cell containing map-frame
+    /// `(x, y)` (m), or `None` outside the window (no integer division per point).
+    pub fn indexer(&self) -> impl Fn(f64, f64) -> Option<usize> + Sync + Send + Copy + 'static {
+        let ix = self.band_indexer(1);
+        move |x, y| ix(x, y).map(|(i, _)| i)
+    }
+
+    /// Like [`Window::indexer`], also giving the band of the index when the storage rows
+    /// are split into bands of `rows_per_band` rows: `(index, index / size / rows_per_band)`.
+    pub fn band_indexer(
+        &self,
+        rows_per_band: usize,
+    ) -> impl Fn(f64, f64) -> Option<(usize, usize)> + Sync + Send + Copy + 'static {
+        let n = self.size as i64;
+        let (or, oc) = self.origin;
+        let (mr, mc) = (or.rem_euclid(n), oc.rem_euclid(n));
+        let inv = 1.0 / self.resolution;
+        // floor(r / d) as a multiply and shift, exact for r < 2^32 / d (r < size here).
+        let d = rows_per_band.max(1) as u64;
+        let magic = (1u64 << 32).div_ceil(d);
+        move |x: f64, y: f64| {
+            let r = cell_coord(y, inv) - or;
+            let c = cell_coord(x, inv) - oc;
+            if r < 0 || c < 0 || r >= n || c >= n {
+                return None;
+            }
+            let (mut sr, mut sc) = (mr + r, mc + c);
+            if sr >= n {
+                sr -= n;
+            }
+            if sc >= n {
+                sc -= n;
+            }
+            Some(((sr * n + sc) as usize, ((sr as u64 * magic) >> 32) as usize))
+        }
+    }
+
+    /// A fast inverse of storage indices: the map-frame centre `(x, y)` (m) of the cell
+    /// stored at an index (no integer division by a variable per call beyond one).
+    pub fn locator(&self) -> impl Fn(usize) -> (f64, f64) + Sync + Send + Copy + 'static {
+        let n = self.size as i64;
+        let (or, oc) = self.origin;
+        let (mr, mc) = (or.rem_euclid(n), oc.rem_euclid(n));
+        let res = self.resolution;
+        let size = self.size;
+        move |index: usize| {
+            let (sr, sc) = ((index / size) as i64, (index % size) as i64);
+            let (mut r, mut c) = (sr - mr, sc - mc);
+            if r < 0 {
+                r += n;
+            }
+            if c < 0 {
+                c += n;
+            }
+            ((oc + c) as f64 * res, (or + r) as f64 * res)
+        }
+    }
+
+    /// The cell at a world cell, if inside.
+    pub fn get(&self, cell: (i64, i64)) -> Option<&T> {
+        self.cells.get(self.index(cell)?)
+    }
+
+    /// Mutable cell at a world cell, if inside.
+    pub fn get_mut(&mut self, cell: (i64, i64)) -> Option<&mut T> {
+        let i = self.index(cell)?;
+        self.cells.get_mut(i)
+    }
+
+    /// All cells in storage order.
+    pub fn cells(&self) -> &[T] {
+        &self.cells
+    }
+
+    /// All cells in storage order, mutable.
+    pub fn cells_mut(&mut self) -> &mut [T] {
+        &mut self.cells
+    }
+
+    /// Moves the window so that its lowest corner cell is `origin`. Every cell that leaves
+    /// the window is passed to `evict` with its world coordinates and then reset.
+    pub fn move_to(&mut self, origin: (i64, i64), mut evict: impl FnMut((i64, i64), &T)) {
+        if origin == self.origin {
+            return;
+        }
+        let n = self.size as i64;
+        let old = self.origin;
+        for i in 0..self.cells.len() {
+            let cell = self.cell_of_index(i);
+            let (r, c) = (cell.0 - origin.0, cell.1 - origin.1);
+            let stays = r >= 0 && c >= 0 && r < n && c < n;
+            if !stays {
+                if let Some(v) = self.cells.get_mut(i) {
+                    evict(cell, v);
+                    *v = T::default();
+                }
+            }
+        }
+        let _ = old;
+        self.origin = origin;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn indexes_wrap_and_moving_keeps_overlapping_cells() {
+        let mut w: Window<i32> = Window::new(4, 0.5, (0, 0));
+        for r in 0..4 {
+            for c in 0..4 {
+                *w.get_mut((r, c)).unwrap() = (r * 10 + c) as i32;
+            }
+        }
+        assert_eq!(w.world_cell(1.24, 0.76), (2, 2));
+        assert_eq!(w.cell_center((2, 3)), (1.5, 1.0));
+        assert!(w.get((4, 0)).is_none());
+        for i in 0..16 {
+            assert_eq!(w.index(w.cell_of_index(i)), Some(i));
+        }
+        {
+            let ix = w.indexer();
+            assert_eq!(ix(1.24, 0.76), w.index((2, 2)));
+            assert_eq!(ix(5.0, 0.0), None);
+            let bix = w.band_indexer(3);
+            for r in 0..4 {
+                for c in 0..4 {
+                    let (x, y) = w.cell_center((r, c));
+                    let (i, b) = bix(x, y).unwrap();
+                    assert_eq!((Some(i), b), (w.index((r, c)), i / 4 / 3));
+                }
+            }
+        }
+        let mut evicted = Vec::new();
+        w.move_to((1, 2), |cell, v| evicted.push((cell, *v)));
+        // Rows 0 and columns 0-1 left the window: 4 + 2 * 3 = 10 cells.
+        assert_eq!(evicted.len(), 10);
+        assert!(evicted.contains(&((0, 3), 3)));
+        assert_eq!(
+            w.get((3, 3)),
+            Some(&33),
+            "overlapping cells keep their values"
+        );
+        assert_eq!(w.get((4, 5)), Some(&0), "new cells start empty");
+        assert_eq!(w.get((1, 1)), None);
+        for i in 0..16 {
+            assert_eq!(w.index(w.cell_of_index(i)), Some(i));
+        }
+        let ix = w.indexer();
+        let loc = w.locator();
+        for r in 1..5 {
+            for c in 2..6 {
+                let (x, y) = w.cell_center((r, c));
+                assert_eq!(ix(x, y), w.index((r, c)));
+                assert_eq!(loc(w.index((r, c)).unwrap()), (x, y));
+            }
+        }
+    }
+}

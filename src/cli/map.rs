@@ -1,0 +1,442 @@
+//! `stride map`: elevation mapping of a sequence with known poses.
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use serde_json::{json, Map, Value};
+use std::path::{Path, PathBuf};
+use stride_core::fsutil::write_atomic;
+use stride_core::grid::Grid;
+use stride_core::rng::SplitMix64;
+use stride_core::trajectory::Trajectory;
+use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
+use stride_datasets::trajectory_file::read_tum_trajectory;
+use stride_datasets::tum::{AssociationOptions, TumSequence};
+use stride_eval::report::Report;
+use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
+use stride_mapping::input::{Cloud, Rejections, SensorFrame};
+use stride_mapping::metrics::{compare, performance_index, MapScore};
+use stride_mapping::post::median_fill;
+use stride_mapping::stack::{StackConfig, StackMapper};
+use stride_mapping::{ElevationMapper, MapLayers};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MapperArg {
+    /// Paper 000's voxel-stack map.
+    Stack,
+    /// The Fankhauser et al. 2014 baseline.
+    Fankhauser,
+    /// Both, on the same frames, side by side.
+    Both,
+}
+
+#[derive(Debug, Args)]
+pub struct MapArgs {
+    /// Sequence folder (TUM layout).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Poses: `groundtruth` (the folder's groundtruth.txt) or a TUM trajectory file; each is
+    /// `world_from_camera` with the world's z axis up.
+    #[arg(long, default_value = "groundtruth")]
+    pub poses: String,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Camera: fr1, fr2, fr3 or a camera file [default: from the folder].
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Which mapper.
+    #[arg(long, value_enum, default_value = "stack")]
+    pub mapper: MapperArg,
+    /// Cell size (m).
+    #[arg(long, default_value_t = 0.01)]
+    pub resolution: f64,
+    /// Side of the moving window (m).
+    #[arg(long, default_value_t = 4.0)]
+    pub size: f64,
+    /// Ground-truth elevation (.npy with its .json or grid.json beside it) to evaluate
+    /// against [default: the folder's terrain.npy when present].
+    #[arg(long, value_name = "FILE.npy")]
+    pub gt_terrain: Option<PathBuf>,
+    /// Perturb the poses with a random-walk drift of this many percent of the distance
+    /// travelled (and 1 degree of yaw per metre per percent), to see how the maps degrade
+    /// with realistic odometry.
+    #[arg(long, value_name = "PERCENT", default_value_t = 0.0)]
+    pub drift: f64,
+    /// Seed of the drift.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Map at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Turn off the visibility check of the stack mapper.
+    #[arg(long)]
+    pub no_visibility: bool,
+}
+
+/// A mapper's results over the sequence.
+pub struct MapperRun {
+    /// Its name.
+    pub name: &'static str,
+    /// Its layers (stack: after the median fill).
+    pub layers: MapLayers,
+    /// Update time per frame (s).
+    pub update_s: Vec<f64>,
+    /// Points used.
+    pub points_used: usize,
+    /// Dropped measurements.
+    pub rejected: Rejections,
+    /// Columns cleared by the visibility check.
+    pub cells_cleared: usize,
+    /// Holes filled by the median filter.
+    pub cells_filled: usize,
+    /// Comparison with ground truth.
+    pub score: Option<MapScore>,
+}
+
+/// Perturbs a trajectory with a seeded random-walk drift: translation error growing by
+/// `percent`/100 of each step's length in a random horizontal-ish direction, yaw error by
+/// `percent` degrees per metre (Gaussian steps).
+pub fn drifted(traj: &Trajectory, percent: f64, seed: u64) -> Result<Trajectory> {
+    let mut rng = SplitMix64::new(seed ^ 0xD21F7);
+    let mut out = Trajectory::new();
+    let (mut e, mut yaw) = (Vector3::zeros(), 0.0f64);
+    let mut prev: Option<Vector3<f64>> = None;
+    for (t, p) in traj.iter() {
+        let pos = p.translation.vector;
+        if let Some(q) = prev {
+            let step = (pos - q).norm();
+            let dir = Vector3::new(rng.normal(), rng.normal(), 0.3 * rng.normal());
+            let dir = if dir.norm() > 1e-12 {
+                dir.normalize()
+            } else {
+                Vector3::x()
+            };
+            e += dir * (percent / 100.0 * step);
+            yaw += (percent * step).to_radians() * rng.normal();
+        }
+        prev = Some(pos);
+        // The error rotates the pose about the current position and shifts it.
+        let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw);
+        let pose = Isometry3::from_parts(Translation3::from(pos + e), rot * p.rotation);
+        out.push(t, pose)?;
+    }
+    Ok(out)
+}
+
+fn make_mappers(a: &MapArgs) -> Vec<Box<dyn ElevationMapper>> {
+    let stack = || -> Box<dyn ElevationMapper> {
+        Box::new(StackMapper::new(StackConfig {
+            resolution_m: a.resolution,
+            size_m: a.size,
+            visibility_check: !a.no_visibility,
+            ..StackConfig::default()
+        }))
+    };
+    let fank = || -> Box<dyn ElevationMapper> {
+        Box::new(FankhauserMapper::new(FankhauserConfig {
+            resolution_m: a.resolution,
+            size_m: a.size,
+            ..FankhauserConfig::default()
+        }))
+    };
+    match a.mapper {
+        MapperArg::Stack => vec![stack()],
+        MapperArg::Fankhauser => vec![fank()],
+        MapperArg::Both => vec![stack(), fank()],
+    }
+}
+
+/// Frames mapped and skipped.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct FrameCounts {
+    /// Frames in the sequence (up to --max-frames).
+    pub frames: usize,
+    /// Frames integrated.
+    pub mapped: usize,
+    /// Frames outside the poses' time span.
+    pub no_pose: usize,
+    /// Frames that could not be loaded.
+    pub unreadable: usize,
+}
+
+/// Maps a sequence with the given poses into each mapper; returns per-mapper runs.
+pub fn map_sequence(
+    seq: &TumSequence,
+    poses: &Trajectory,
+    mut mappers: Vec<Box<dyn ElevationMapper>>,
+    max_frames: Option<usize>,
+    gt: Option<&Grid<f32>>,
+) -> Result<(Vec<MapperRun>, FrameCounts)> {
+    let stream = seq.stream(max_frames, 4);
+    let pb = ProgressBar::new(stream.len() as u64);
+    pb.set_style(
+        ProgressStyle::with_template("mapping [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let mut counts = FrameCounts::default();
+    let mut stats: Vec<(Vec<f64>, usize, Rejections, usize)> = mappers
+        .iter()
+        .map(|_| (Vec::new(), 0, Rejections::default(), 0))
+        .collect();
+    for item in stream {
+        counts.frames += 1;
+        pb.inc(1);
+        let decoded = match item {
+            Ok(d) => d,
+            Err(f) => {
+                tracing::warn!("frame {} skipped: {}", f.index, f.error);
+                counts.unreadable += 1;
+                continue;
+            }
+        };
+        let frame = &decoded.frame;
+        let Some(pose) = poses.interpolate(frame.t_depth_s) else {
+            counts.no_pose += 1;
+            continue;
+        };
+        counts.mapped += 1;
+        let sf = SensorFrame {
+            cloud: Cloud::Depth {
+                depth_m: &frame.depth_m,
+                camera: &seq.camera.camera,
+            },
+            map_from_sensor: pose,
+            time_s: frame.t_depth_s,
+        };
+        for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
+            let u = m.integrate(&sf);
+            s.0.push(u.update_s);
+            s.1 += u.points_used;
+            s.2.add(&u.rejected);
+            s.3 += u.cells_cleared;
+        }
+    }
+    pb.finish_and_clear();
+    let mut runs = Vec::new();
+    for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
+        let mut layers = m.export();
+        // The median fill is part of paper 000's method, not of the baseline.
+        let cells_filled = if m.name() == "stack" {
+            median_fill(&mut layers.elevation, &mut layers.variance, 5)
+        } else {
+            0
+        };
+        let score = gt.and_then(|g| compare(&layers.elevation, g));
+        runs.push(MapperRun {
+            name: m.name(),
+            layers,
+            update_s,
+            points_used,
+            rejected,
+            cells_cleared,
+            cells_filled,
+            score,
+        });
+    }
+    Ok((runs, counts))
+}
+
+fn median_p95(v: &[f64]) -> (f64, f64) {
+    crate::pipeline::median_p95(v.iter().copied())
+}
+
+/// The report object of one mapper.
+pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
+    let (med, p95) = median_p95(&r.update_s);
+    let total_s: f64 = r.update_s.iter().sum();
+    let mut m = Map::new();
+    m.insert("mapper".into(), json!(r.name));
+    if let Some(s) = &r.score {
+        m.insert("mse".into(), json!(s.mse));
+        m.insert("rmse".into(), json!(s.rmse));
+        m.insert("mean_abs".into(), json!(s.mean_abs));
+        m.insert("p95_abs".into(), json!(s.p95_abs));
+        m.insert("max_abs".into(), json!(s.max_abs));
+        m.insert("coverage".into(), json!(s.coverage));
+        m.insert("cells_compared".into(), json!(s.cells_compared));
+    } else {
+        m.insert("mse".into(), Value::Null);
+        m.insert("coverage".into(), Value::Null);
+    }
+    m.insert("cells_observed".into(), json!(r.layers.cells_observed()));
+    m.insert(
+        "update_ms".into(),
+        json!({"median": med * 1e3, "p95": p95 * 1e3}),
+    );
+    m.insert(
+        "points_per_s".into(),
+        json!(if total_s > 0.0 {
+            r.points_used as f64 / total_s
+        } else {
+            f64::NAN
+        }),
+    );
+    m.insert("points_used".into(), json!(r.points_used));
+    m.insert(
+        "rejected".into(),
+        serde_json::to_value(r.rejected).unwrap_or(Value::Null),
+    );
+    m.insert("cells_cleared_by_visibility".into(), json!(r.cells_cleared));
+    m.insert("cells_filled_by_median".into(), json!(r.cells_filled));
+    m.insert("frames".into(), json!(counts.frames));
+    m.insert("frames_mapped".into(), json!(counts.mapped));
+    m.insert("frames_skipped_no_pose".into(), json!(counts.no_pose));
+    m.insert("frames_skipped_unreadable".into(), json!(counts.unreadable));
+    Value::Object(m)
+}
+
+/// Writes one mapper's layers, grid header, preview and surface into `dir`.
+pub fn write_layers(dir: &Path, layers: &MapLayers) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    write_layer(&dir.join("elevation.npy"), &layers.elevation)?;
+    write_layer(&dir.join("variance.npy"), &layers.variance)?;
+    write_layer(&dir.join("vitality.npy"), &layers.vitality)?;
+    write_layer(&dir.join("updates.npy"), &layers.updates)?;
+    write_header(&dir.join("grid.json"), &layers.elevation.geometry)?;
+    let png = relief_png(&layers.elevation, 1200).map_err(anyhow::Error::msg)?;
+    write_atomic(&dir.join("elevation.png"), &png)?;
+    write_atomic(&dir.join("surface.ply"), &surface_ply(&layers.elevation))?;
+    Ok(())
+}
+
+pub const MAP_FRAME_NOTE: &str = "map frame = the pose file's world frame (z up, metres); each depth pixel is back-projected in the camera frame (x right, y down, z forward) and placed with world_from_camera interpolated at the depth image's time";
+
+pub fn run(a: MapArgs) -> Result<()> {
+    let seq = TumSequence::open(
+        &a.dataset,
+        a.camera.as_deref(),
+        AssociationOptions::default(),
+    )
+    .context("opening the dataset")?;
+    let poses = if a.poses == "groundtruth" {
+        seq.groundtruth.clone().with_context(|| {
+            format!(
+                "{} has no groundtruth.txt; pass --poses FILE",
+                a.dataset.display()
+            )
+        })?
+    } else {
+        read_tum_trajectory(Path::new(&a.poses)).context("reading --poses")?
+    };
+    if !(a.resolution.is_finite()
+        && a.resolution > 0.0
+        && a.size.is_finite()
+        && a.size > a.resolution * 8.0)
+    {
+        bail!(
+            "--resolution {} and --size {} must be positive, with at least 8 cells per side",
+            a.resolution,
+            a.size
+        );
+    }
+    if !(a.drift.is_finite() && a.drift >= 0.0) {
+        bail!("--drift {} must be a non-negative percentage", a.drift);
+    }
+    let poses = if a.drift > 0.0 {
+        drifted(&poses, a.drift, a.seed)?
+    } else {
+        poses
+    };
+    let gt_path = a
+        .gt_terrain
+        .clone()
+        .or_else(|| Some(a.dataset.join("terrain.npy")).filter(|p| p.is_file()));
+    let gt = match &gt_path {
+        Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
+        None => None,
+    };
+    let (runs, counts) = map_sequence(&seq, &poses, make_mappers(&a), a.max_frames, gt.as_ref())?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut report = Map::new();
+    let mut rep = Report::new("stride map: elevation map");
+    rep.paragraph(format!("Dataset {}; poses {}{}; {} of {} frames mapped ({} outside the poses' time span, {} unreadable).", a.dataset.display(), a.poses, if a.drift > 0.0 { format!(" with {} % drift (seed {})", a.drift, a.seed) } else { String::new() }, counts.mapped, counts.frames, counts.no_pose, counts.unreadable));
+    rep.paragraph(MAP_FRAME_NOTE);
+    let mut rows = Vec::new();
+    for r in &runs {
+        let dir = if runs.len() > 1 {
+            a.out.join(r.name)
+        } else {
+            a.out.clone()
+        };
+        write_layers(&dir, &r.layers)?;
+        let j = run_json(r, &counts);
+        let f = |k: &str| {
+            j.get(k)
+                .and_then(Value::as_f64)
+                .map_or("-".to_owned(), |v| format!("{v:.6}"))
+        };
+        rows.push(vec![
+            r.name.to_owned(),
+            f("mse"),
+            f("rmse"),
+            f("coverage"),
+            j["cells_observed"].to_string(),
+            format!(
+                "{:.2}",
+                j["update_ms"]["median"].as_f64().unwrap_or(f64::NAN)
+            ),
+            format!("{:.3e}", j["points_per_s"].as_f64().unwrap_or(f64::NAN)),
+        ]);
+        let rel = if runs.len() > 1 {
+            format!("{}/elevation.png", r.name)
+        } else {
+            "elevation.png".to_owned()
+        };
+        rep.image(
+            &rel,
+            format!("{}: elevation (colour relief, +y up).", r.name),
+        );
+        if runs.len() > 1 {
+            report.insert(r.name.into(), j);
+        } else {
+            report = j.as_object().cloned().unwrap_or_default();
+        }
+    }
+    if let (Some(g), [s, f]) = (&gt, runs.as_slice()) {
+        if let Some(pi) = performance_index(&s.layers.elevation, &f.layers.elevation, g) {
+            report.insert("performance_index_stack_vs_fankhauser".into(), json!(pi));
+            rep.paragraph(format!("Performance index (paper 000, eq. 13) of the stack map against the Fankhauser map: {pi:.3} (below 1: the stack map's MSE is lower)."));
+        }
+    }
+    rep.table(
+        &[
+            "mapper",
+            "MSE (m²)",
+            "RMSE (m)",
+            "coverage",
+            "cells",
+            "update ms (median)",
+            "points/s",
+        ],
+        rows,
+    );
+    report.insert("map_frame".into(), json!(MAP_FRAME_NOTE));
+    report.insert(
+        "ground_truth".into(),
+        json!(gt_path.as_ref().map(|p| p.display().to_string())),
+    );
+    report.insert("drift_percent".into(), json!(a.drift));
+    write_atomic(
+        &a.out.join("report.json"),
+        serde_json::to_string_pretty(&Value::Object(report.clone()))?.as_bytes(),
+    )?;
+    rep.write(&a.out)?;
+    for r in &runs {
+        let j = run_json(r, &counts);
+        crate::outln!(
+            "{:<11} MSE {} m², coverage {}, {} cells, update {:.2} ms median ({:.2} p95), {:.2e} points/s",
+            r.name,
+            j["mse"].as_f64().map_or("-".into(), |v| format!("{v:.3e}")),
+            j["coverage"].as_f64().map_or("-".into(), |v| format!("{v:.3}")),
+            j["cells_observed"],
+            j["update_ms"]["median"].as_f64().unwrap_or(f64::NAN),
+            j["update_ms"]["p95"].as_f64().unwrap_or(f64::NAN),
+            j["points_per_s"].as_f64().unwrap_or(f64::NAN)
+        )?;
+    }
+    crate::outln!("written to {}", a.out.display())?;
+    Ok(())
+}
