@@ -12,7 +12,8 @@
 //! the original applies them in cloud order.
 
 use crate::input::{
-    pose_is_finite, prepare_binned, Binned, DepthPixel, HeightModel, RayCache, SensorFrame,
+    pose_is_finite, prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache,
+    SensorFrame,
 };
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
@@ -77,6 +78,10 @@ impl HeightModel for KinectNguyenHeight {
     fn range_m(&self) -> (f64, f64) {
         (self.min_depth_m, self.max_depth_m)
     }
+
+    fn depth_sigma_m(&self, d: f64) -> f64 {
+        self.normal_a + self.normal_b * (d - self.normal_c).powi(2)
+    }
 }
 
 /// Parameters of [`FankhauserMapper`].
@@ -102,6 +107,9 @@ pub struct FankhauserConfig {
     pub recenter_threshold_m: f64,
     /// Sensor model.
     pub sensor: KinectNguyenHeight,
+    /// Depth-edge filter ([`crate::input::EdgeFilter`]); elevation_mapping has none, so
+    /// `None` by default.
+    pub edge_filter: Option<EdgeFilter>,
 }
 
 impl Default for FankhauserConfig {
@@ -120,6 +128,7 @@ impl Default for FankhauserConfig {
             lookahead_m: 1.2,
             recenter_threshold_m: 0.3,
             sensor: KinectNguyenHeight::default(),
+            edge_filter: None,
         }
     }
 }
@@ -213,6 +222,7 @@ impl ElevationMapper for FankhauserMapper {
                 &mut self.rays,
                 |_, _| None,
                 1,
+                None,
                 &mut self.binned,
             );
             return UpdateStats {
@@ -231,8 +241,10 @@ impl ElevationMapper for FankhauserMapper {
             &mut self.rays,
             self.window.band_indexer(size.div_ceil(BANDS)),
             BANDS,
+            cfg.edge_filter.as_ref(),
             &mut self.binned,
         );
+        let prepare_s = start.elapsed().as_secs_f64();
         let binned = &self.binned;
         let frame_no = self.frame_no;
         let used: usize = self
@@ -297,6 +309,8 @@ impl ElevationMapper for FankhauserMapper {
             rejected: rej,
             cells_cleared: 0,
             update_s: start.elapsed().as_secs_f64(),
+            prepare_s,
+            checks_s: 0.0,
         }
     }
 

@@ -47,6 +47,44 @@ pub trait HeightModel: Sync {
     fn point_variance(&self, p: &Point3<f64>, cov: &Matrix3<f64>, r3: &Vector3<f64>) -> f64;
     /// Depth range accepted (m, along the optical axis).
     fn range_m(&self) -> (f64, f64);
+    /// Standard deviation of a depth measurement `d` (m) along the optical axis (m).
+    fn depth_sigma_m(&self, d: f64) -> f64;
+}
+
+/// A front-end filter of depth images against flying pixels (returns between a foreground
+/// edge and the background behind it, which hang in the air in the foreground's shadow
+/// where no later view can contradict them). A pixel is dropped when one of its 8
+/// neighbours is nearer by more than `tau(d) = d / (f tan(min_grazing)) + k sqrt(2)
+/// sigma_d(d)`: more than a surface seen at the shallowest accepted angle can change from
+/// one pixel to the next, plus `k` standard deviations of the difference of two
+/// measurements. It also drops the background pixels that touch a foreground edge, which
+/// costs one pixel of background along each edge.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeFilter {
+    /// Shallowest angle between a viewing ray and a surface treated as a surface (rad).
+    pub min_grazing_rad: f64,
+    /// Noise allowance `k` (standard deviations).
+    pub sigmas: f64,
+}
+
+impl Default for EdgeFilter {
+    /// 8 degrees (a floor 4 m away seen from 0.5 m is at 7 degrees and loses no more
+    /// pixels than the sensor already does at such angles), 3 standard deviations.
+    fn default() -> Self {
+        Self {
+            min_grazing_rad: 8f64.to_radians(),
+            sigmas: 3.0,
+        }
+    }
+}
+
+impl EdgeFilter {
+    /// The jump (m) above which a nearer neighbour marks a pixel of depth `d` (m) as an
+    /// edge, for focal length `f_px` and depth standard deviation `sigma_d` (m).
+    pub fn threshold_m(&self, d: f64, f_px: f64, sigma_d: f64) -> f64 {
+        d / (f_px.max(1.0) * self.min_grazing_rad.tan().max(1e-3))
+            + self.sigmas * std::f64::consts::SQRT_2 * sigma_d
+    }
 }
 
 /// A depth measurement at a pixel.
@@ -104,6 +142,10 @@ impl HeightModel for PrimeSenseHeight {
     fn range_m(&self) -> (f64, f64) {
         (self.min_depth_m, self.max_depth_m)
     }
+
+    fn depth_sigma_m(&self, d: f64) -> f64 {
+        self.model.sigma_d(d)
+    }
 }
 
 /// Per-frame counts of measurements that were dropped, by reason.
@@ -121,6 +163,8 @@ pub struct Rejections {
     pub outside_window: usize,
     /// The frame's pose was not finite (every point dropped).
     pub bad_pose: usize,
+    /// Dropped by the depth-edge (flying pixel) filter.
+    pub depth_edge: usize,
 }
 
 impl Rejections {
@@ -132,6 +176,7 @@ impl Rejections {
         self.bad_variance += o.bad_variance;
         self.outside_window += o.outside_window;
         self.bad_pose += o.bad_pose;
+        self.depth_edge += o.depth_edge;
     }
 
     /// Points dropped for any reason other than a missing return.
@@ -141,6 +186,7 @@ impl Rejections {
             + self.bad_variance
             + self.outside_window
             + self.bad_pose
+            + self.depth_edge
     }
 }
 
@@ -163,16 +209,20 @@ pub fn pose_is_finite(t: &Isometry3<f64>) -> bool {
         && t.rotation.coords.iter().all(|v| v.is_finite())
 }
 
-/// Undistorted normalised coordinates of every pixel of a camera, computed once.
+/// Undistorted normalised coordinates of every pixel of a camera with lens distortion,
+/// computed once (a camera without distortion needs no table).
 #[derive(Debug, Clone, Default)]
 pub struct RayCache {
     camera: Option<PinholeCamera>,
-    rays: Vec<(f64, f64)>,
+    rays: Vec<(f32, f32)>,
 }
 
 impl RayCache {
-    /// The rays of `camera`, recomputed only when the camera changes.
-    pub fn rays(&mut self, camera: &PinholeCamera) -> &[(f64, f64)] {
+    /// The rays of `camera` (the table is rebuilt only when the camera changes).
+    pub fn rays(&mut self, camera: &PinholeCamera) -> Rays<'_> {
+        if camera.distortion.is_none() {
+            return Rays::Pinhole(*camera);
+        }
         if self.camera.as_ref() != Some(camera) {
             let (w, h) = (camera.width as usize, camera.height as usize);
             self.rays = (0..w * h)
@@ -182,12 +232,43 @@ impl RayCache {
                         (i % w) as f64,
                         (i / w) as f64,
                     ));
-                    (n.x, n.y)
+                    (n.x as f32, n.y as f32)
                 })
                 .collect();
             self.camera = Some(*camera);
         }
-        &self.rays
+        Rays::Table(&self.rays, camera.width as usize)
+    }
+}
+
+/// The undistorted normalised coordinates `(x/z, y/z)` of a camera's pixels.
+#[derive(Debug, Clone, Copy)]
+pub enum Rays<'a> {
+    /// Computed from the intrinsics (no distortion).
+    Pinhole(PinholeCamera),
+    /// Looked up in a row-major table of `width` columns.
+    Table(&'a [(f32, f32)], usize),
+}
+
+impl Rays<'_> {
+    /// Fills `out` with the rays of row `v` (`width` pixels).
+    pub fn row(&self, v: usize, width: usize, out: &mut Vec<(f64, f64)>) {
+        out.clear();
+        match self {
+            Rays::Pinhole(c) => {
+                let (ifx, yn) = (1.0 / c.fx, (v as f64 - c.cy) / c.fy);
+                out.extend((0..width).map(|u| ((u as f64 - c.cx) * ifx, yn)));
+            }
+            Rays::Table(t, w) => {
+                let row = t.get(v * w..(v + 1) * w).unwrap_or(&[]);
+                out.extend(
+                    row.iter()
+                        .take(width)
+                        .map(|&(x, y)| (f64::from(x), f64::from(y))),
+                );
+                out.resize(width, (f64::NAN, f64::NAN));
+            }
+        }
     }
 }
 
@@ -198,6 +279,7 @@ enum Reason {
     NonFinite,
     OutOfRange,
     BadVariance,
+    DepthEdge,
 }
 
 impl Rejections {
@@ -207,6 +289,7 @@ impl Rejections {
             Reason::NonFinite => self.non_finite += 1,
             Reason::OutOfRange => self.out_of_range += 1,
             Reason::BadVariance => self.bad_variance += 1,
+            Reason::DepthEdge => self.depth_edge += 1,
         }
     }
 }
@@ -297,11 +380,168 @@ impl Placement {
             Err(Reason::OutOfRange)
         } else {
             match cov {
-                Some(c) if c.iter().all(|v| v.is_finite()) => {
+                // A covariance must be finite with positive variances, whether or not the
+                // sensor model uses it.
+                Some(c)
+                    if c.iter().all(|v| v.is_finite()) && c.diagonal().iter().all(|&v| v > 0.0) =>
+                {
                     self.place(p.coords, model.point_variance(p, c, &self.r3))
                 }
                 _ => Err(Reason::BadVariance),
             }
+        }
+    }
+}
+
+/// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its
+/// 3 x 3 neighbourhood (infinity when there is none), using `col` as scratch.
+fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: &mut Vec<f32>) {
+    let (w, h) = (depth.width() as usize, depth.height() as usize);
+    let px = depth.as_slice();
+    let row = |r: usize| px.get(r * w..(r + 1) * w).unwrap_or(&[]);
+    let nz = |x: f32| if x > 0.0 { x } else { f32::INFINITY };
+    let (up, mid, down) = (
+        row(v.saturating_sub(1)),
+        row(v),
+        row((v + 1).min(h.saturating_sub(1))),
+    );
+    col.clear();
+    col.push(f32::INFINITY);
+    col.extend(
+        up.iter()
+            .zip(mid)
+            .zip(down)
+            .map(|((&a, &b), &c)| nz(a).min(nz(b)).min(nz(c))),
+    );
+    col.push(f32::INFINITY);
+    out.clear();
+    out.extend(col.windows(3).map(|t| match t {
+        [a, b, c] => a.min(*b).min(*c),
+        _ => f32::INFINITY,
+    }));
+}
+
+/// One slice of rows of a depth image and what is needed to turn its pixels into map
+/// points.
+struct DepthSlice<'a, M: ?Sized> {
+    depth: &'a DepthImage,
+    camera: &'a PinholeCamera,
+    rays: Rays<'a>,
+    rows: std::ops::Range<usize>,
+    edge: Option<&'a EdgeFilter>,
+    place: &'a Placement,
+    model: &'a M,
+}
+
+/// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
+/// variance (m²) and whether it is a valid measurement.
+#[derive(Debug, Clone, Copy, Default)]
+struct RowPoint {
+    x: f64,
+    y: f64,
+    z: f64,
+    var: f64,
+    ok: bool,
+}
+
+/// Turns the pixels of a slice of rows into map points (or reasons to drop them), in
+/// pixel order. Each row goes through a branch-free arithmetic pass the compiler can
+/// vectorise, then a pass that hands valid points (or the reason for an invalid one) to
+/// `sink`.
+#[inline]
+fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Reason>)>(
+    s: DepthSlice<'_, M>,
+    mut sink: S,
+) {
+    let w = (s.depth.width() as usize).max(1);
+    let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
+    let f_px = s.camera.fx;
+    let pl = s.place;
+    let (lo, hi) = pl.range;
+    let rot = pl.rot;
+    let t = pl.trans;
+    // The edge threshold of `EdgeFilter::threshold_m`, written out so that it vectorises
+    // (no filter: an infinite threshold).
+    let edge_slope = s
+        .edge
+        .map_or(f64::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0));
+    let edge_k = s.edge.map_or(0.0, |e| e.sigmas * std::f64::consts::SQRT_2);
+    let is_edge = |d: f64, near: f32| {
+        let gap = d - f64::from(near);
+        // The cheap bound first: the noise term is only needed near a jump.
+        gap > edge_slope * d && gap > edge_slope * d + edge_k * s.model.depth_sigma_m(d)
+    };
+    let mut rrow = Vec::new();
+    for v in s.rows {
+        let Some(drow) = s.depth.as_slice().get(v * w..(v + 1) * w) else {
+            continue;
+        };
+        s.rays.row(v, w, &mut rrow);
+        if s.edge.is_some() {
+            nearest_neighbour_row(s.depth, v, &mut scratch, &mut nearest);
+        } else {
+            nearest.clear();
+        }
+        nearest.resize(drow.len(), f32::INFINITY);
+        pts.clear();
+        pts.extend(drow.iter().zip(&rrow).zip(&nearest).enumerate().map(
+            |(u, ((&d, &(xn, yn)), &near))| {
+                let d = f64::from(d);
+                let p = nalgebra::Vector3::new(xn * d, yn * d, d);
+                let q = rot * p + t;
+                let var = s.model.pixel_variance(
+                    s.camera,
+                    &DepthPixel {
+                        u: u as f64,
+                        v: v as f64,
+                        xn,
+                        yn,
+                        d_m: d,
+                    },
+                    &pl.r3,
+                );
+                let ok = d >= lo
+                    && d <= hi
+                    && var > 0.0
+                    && var < f64::INFINITY
+                    && q.x.is_finite()
+                    && q.y.is_finite()
+                    && !is_edge(d, near);
+                RowPoint {
+                    x: q.x,
+                    y: q.y,
+                    z: q.z,
+                    var,
+                    ok,
+                }
+            },
+        ));
+        for ((p, &d), &near) in pts.iter().zip(drow).zip(&nearest) {
+            if p.ok {
+                sink(Ok(MapPoint {
+                    x: p.x,
+                    y: p.y,
+                    z: p.z,
+                    var: p.var,
+                }));
+                continue;
+            }
+            let d = f64::from(d);
+            sink(Err(if d == 0.0 {
+                Reason::NoReturn
+            } else if !d.is_finite() {
+                Reason::NonFinite
+            } else if d < lo || d > hi {
+                Reason::OutOfRange
+            } else if !(p.var.is_finite() && p.var > 0.0) {
+                Reason::BadVariance
+            } else if !(p.x.is_finite() && p.y.is_finite()) {
+                // A pixel outside the camera's ray table (image larger than the camera).
+                Reason::NonFinite
+            } else {
+                debug_assert!(is_edge(d, near));
+                Reason::DepthEdge
+            }));
         }
     }
 }
@@ -361,6 +601,7 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
     rays: &mut RayCache,
     locate: L,
     bands: usize,
+    edge: Option<&EdgeFilter>,
     out: &mut Binned,
 ) -> Rejections {
     let t = frame.map_from_sensor;
@@ -403,7 +644,6 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
     };
     match frame.cloud {
         Cloud::Depth { depth_m, camera } => {
-            let w = (depth_m.width() as usize).max(1);
             let h = depth_m.height() as usize;
             let rays = rays.rays(camera);
             let rows_per_slice = h.div_ceil(SLICES).max(1);
@@ -412,17 +652,19 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
                 .zip(out.rejections.par_iter_mut())
                 .enumerate()
                 .for_each(|(s, (lists, rej))| {
-                    for v in (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h) {
-                        let (Some(drow), Some(rrow)) = (
-                            depth_m.as_slice().get(v * w..(v + 1) * w),
-                            rays.get(v * w..(v + 1) * w),
-                        ) else {
-                            continue;
-                        };
-                        for (u, (&d, &ray)) in drow.iter().zip(rrow).enumerate() {
-                            push(place.pixel(model, camera, u, v, ray, d), lists, rej);
-                        }
-                    }
+                    let rows = (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h);
+                    depth_slice(
+                        DepthSlice {
+                            depth: depth_m,
+                            camera,
+                            rays,
+                            rows,
+                            edge,
+                            place: &place,
+                            model,
+                        },
+                        |res| push(res, lists, rej),
+                    );
                 });
         }
         Cloud::Points {
@@ -473,18 +715,24 @@ pub fn to_map_points<M: HeightModel + ?Sized>(
     let results: Vec<Result<MapPoint, Reason>> = match frame.cloud {
         Cloud::Depth { depth_m, camera } => {
             let w = (depth_m.width() as usize).max(1);
-            let rays = RayCache::default().rays(camera).to_vec();
+            let mut cache = RayCache::default();
+            let rays = cache.rays(camera);
+            let mut row = Vec::new();
             depth_m
                 .as_slice()
                 .iter()
                 .enumerate()
                 .map(|(i, &d)| {
+                    let (u, v) = (i % w, i / w);
+                    if u == 0 {
+                        rays.row(v, w, &mut row);
+                    }
                     place.pixel(
                         model,
                         camera,
-                        i % w,
-                        i / w,
-                        rays.get(i).copied().unwrap_or((0.0, 0.0)),
+                        u,
+                        v,
+                        row.get(u).copied().unwrap_or((f64::NAN, f64::NAN)),
                         d,
                     )
                 })

@@ -41,6 +41,10 @@ pub struct UpdateStats {
     pub cells_cleared: usize,
     /// Wall time of the update (s).
     pub update_s: f64,
+    /// Of which: turning the measurements into map-frame heights and binning them (s).
+    pub prepare_s: f64,
+    /// Of which: the checks after the fusion (visibility, see-through) (s).
+    pub checks_s: f64,
 }
 
 /// An elevation mapper: integrates sensor frames, exports its layers.

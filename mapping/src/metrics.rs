@@ -81,6 +81,168 @@ pub fn performance_index(f: &Grid<f32>, m: &Grid<f32>, gt: &Grid<f32>) -> Option
     (sm.mse > 0.0).then(|| sf.mse / sm.mse)
 }
 
+/// Phantom obstacles: map cells that stand higher than a flat ground truth.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PhantomScore {
+    /// Map cells over flat ground truth (every ground-truth cell within `radius_m` known,
+    /// their heights within `flat_tol_m` of each other).
+    pub flat_cells: usize,
+    /// Of those, cells higher than the ground truth by more than `threshold_m`.
+    pub phantoms: usize,
+    /// Largest height above the ground truth over flat cells (m).
+    pub max_excess_m: f64,
+    /// The threshold (m).
+    pub threshold_m: f64,
+}
+
+/// Counts phantom obstacles of `map` against `gt` (same frame, z up): see [`PhantomScore`].
+/// The flat test keeps object edges and steps out (a map cell there may honestly hold
+/// either height).
+pub fn phantoms(
+    map: &Grid<f32>,
+    gt: &Grid<f32>,
+    radius_m: f64,
+    flat_tol_m: f64,
+    threshold_m: f64,
+) -> PhantomScore {
+    let g = map.geometry;
+    let gg = gt.geometry;
+    let k = (radius_m / gg.resolution).round().max(0.0) as i64;
+    let mut out = PhantomScore {
+        flat_cells: 0,
+        phantoms: 0,
+        max_excess_m: f64::NAN,
+        threshold_m,
+    };
+    for r in 0..g.rows {
+        for c in 0..g.cols {
+            let Some(h) = map.get(r, c).filter(|v| !v.is_nan()) else {
+                continue;
+            };
+            let (x, y) = g.center(r, c);
+            let Some((gr, gc)) = gg.cell_of(x, y) else {
+                continue;
+            };
+            let (mut lo, mut hi, mut flat) = (f32::INFINITY, f32::NEG_INFINITY, true);
+            'n: for dr in -k..=k {
+                for dc in -k..=k {
+                    let (rr, cc) = (gr as i64 + dr, gc as i64 + dc);
+                    match (rr >= 0 && cc >= 0)
+                        .then(|| gt.get(rr as usize, cc as usize))
+                        .flatten()
+                        .filter(|v| !v.is_nan())
+                    {
+                        Some(t) => {
+                            lo = lo.min(t);
+                            hi = hi.max(t);
+                        }
+                        None => {
+                            flat = false;
+                            break 'n;
+                        }
+                    }
+                }
+            }
+            if !flat || f64::from(hi - lo) > flat_tol_m {
+                continue;
+            }
+            let Some(t) = gt.get(gr, gc) else { continue };
+            let excess = f64::from(h) - f64::from(t);
+            out.flat_cells += 1;
+            out.phantoms += usize::from(excess > threshold_m);
+            out.max_excess_m = if out.max_excess_m.is_nan() {
+                excess
+            } else {
+                out.max_excess_m.max(excess)
+            };
+        }
+    }
+    out
+}
+
+/// A plane `z = a x + b y + c` fitted to the floor of a map.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FloorFit {
+    /// Cells on the floor (within `band_m` of the plane).
+    pub cells: usize,
+    /// Fraction of the map's cells on the floor.
+    pub fraction: f64,
+    /// `[a, b, c]` (a, b unitless; c in m).
+    pub plane: [f64; 3],
+    /// Angle between the plane and the map's x-y plane (degrees).
+    pub tilt_deg: f64,
+    /// Standard deviation of the floor cells' heights about the plane (m).
+    pub residual_std_m: f64,
+    /// 95th percentile of their absolute distance to the plane (m).
+    pub residual_p95_m: f64,
+}
+
+/// How flat a map's floor is, without ground truth: the most common height (1 cm bins)
+/// seeds the floor, cells within `band_m` of it are fitted with a plane by least squares,
+/// then the cells within `band_m` of that plane are fitted again. `None` with fewer than
+/// 100 floor cells.
+pub fn floor_fit(map: &Grid<f32>, band_m: f64) -> Option<FloorFit> {
+    let g = map.geometry;
+    let cells: Vec<(f64, f64, f64)> = (0..g.rows)
+        .flat_map(|r| (0..g.cols).map(move |c| (r, c)))
+        .filter_map(|(r, c)| {
+            let h = map.get(r, c).filter(|v| v.is_finite())?;
+            let (x, y) = g.center(r, c);
+            Some((x, y, f64::from(h)))
+        })
+        .collect();
+    let lo = cells.iter().map(|p| p.2).fold(f64::INFINITY, f64::min);
+    let mut hist: std::collections::BTreeMap<i64, usize> = std::collections::BTreeMap::new();
+    for p in &cells {
+        *hist.entry(((p.2 - lo) / 0.01) as i64).or_default() += 1;
+    }
+    let mode = hist
+        .iter()
+        .max_by_key(|(_, n)| **n)
+        .map(|(b, _)| lo + (*b as f64 + 0.5) * 0.01)?;
+    let fit = |near: &dyn Fn(&(f64, f64, f64)) -> bool| -> Option<[f64; 3]> {
+        let (mut ata, mut atb) = (
+            nalgebra::Matrix3::<f64>::zeros(),
+            nalgebra::Vector3::<f64>::zeros(),
+        );
+        for p in cells.iter().filter(|p| near(p)) {
+            let a = nalgebra::Vector3::new(p.0, p.1, 1.0);
+            ata += a * a.transpose();
+            atb += a * p.2;
+        }
+        let s = ata.cholesky()?.solve(&atb);
+        Some([s.x, s.y, s.z])
+    };
+    let first = fit(&|p| (p.2 - mode).abs() <= band_m)?;
+    let dist = |pl: &[f64; 3], p: &(f64, f64, f64)| p.2 - (pl[0] * p.0 + pl[1] * p.1 + pl[2]);
+    let plane = fit(&|p| dist(&first, p).abs() <= band_m)?;
+    let mut res: Vec<f64> = cells
+        .iter()
+        .map(|p| dist(&plane, p))
+        .filter(|d| d.abs() <= band_m)
+        .collect();
+    if res.len() < 100 {
+        return None;
+    }
+    let n = res.len() as f64;
+    let mean = res.iter().sum::<f64>() / n;
+    let std = (res.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n).sqrt();
+    res.iter_mut().for_each(|d| *d = d.abs());
+    res.sort_by(f64::total_cmp);
+    let p95 = res
+        .get(((res.len() - 1) as f64 * 0.95) as usize)
+        .copied()
+        .unwrap_or(f64::NAN);
+    Some(FloorFit {
+        cells: res.len(),
+        fraction: n / cells.len().max(1) as f64,
+        plane,
+        tilt_deg: (plane[0].hypot(plane[1])).atan().to_degrees(),
+        residual_std_m: std,
+        residual_p95_m: p95,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -114,5 +276,69 @@ mod tests {
         let pi = performance_index(&a, &b, &gt).unwrap();
         assert!((pi - 0.25).abs() < 1e-4, "{pi}");
         assert!(compare(&Grid::filled(g, f32::NAN), &gt).is_none());
+    }
+
+    #[test]
+    fn phantoms_count_only_over_flat_ground_truth() {
+        let g = GridGeometry {
+            origin_x: 0.0,
+            origin_y: 0.0,
+            resolution: 0.01,
+            rows: 40,
+            cols: 40,
+        };
+        let mut gt = Grid::filled(g, 0.0f32);
+        // A 10 cm box in one corner: not flat ground.
+        for r in 0..8 {
+            for c in 0..8 {
+                *gt.get_mut(r, c).unwrap() = 0.10;
+            }
+        }
+        let mut map = gt.clone();
+        *map.get_mut(20, 20).unwrap() = 0.05; // a phantom on flat ground
+        *map.get_mut(30, 30).unwrap() = 0.015; // within the 2 cm threshold
+        *map.get_mut(8, 8).unwrap() = 0.10; // beside the box: not judged
+        let p = phantoms(&map, &gt, 0.05, 0.01, 0.02);
+        assert_eq!(p.phantoms, 1);
+        assert!((p.max_excess_m - 0.05).abs() < 1e-6);
+        assert!(p.flat_cells < 40 * 40 - 64 && p.flat_cells > 500, "{p:?}");
+    }
+
+    #[test]
+    fn floor_fit_recovers_a_tilted_floor_beside_an_object() {
+        let g = GridGeometry {
+            origin_x: -1.0,
+            origin_y: -1.0,
+            resolution: 0.02,
+            rows: 100,
+            cols: 100,
+        };
+        let mut map = Grid::filled(g, f32::NAN);
+        let mut rng = stride_core::rng::SplitMix64::new(3);
+        for r in 0..100 {
+            for c in 0..100 {
+                let (x, y) = g.center(r, c);
+                let object = x > 0.5 && y > 0.5;
+                let h = if object {
+                    0.4
+                } else {
+                    0.02 * x - 0.01 * y + 0.3 + 0.005 * rng.normal()
+                };
+                *map.get_mut(r, c).unwrap() = h as f32;
+            }
+        }
+        let f = floor_fit(&map, 0.05).unwrap();
+        assert!(
+            (f.plane[0] - 0.02).abs() < 1e-3
+                && (f.plane[1] + 0.01).abs() < 1e-3
+                && (f.plane[2] - 0.3).abs() < 1e-3,
+            "{f:?}"
+        );
+        assert!((f.residual_std_m - 0.005).abs() < 5e-4, "{f:?}");
+        assert!((f.tilt_deg - (0.02f64.hypot(0.01)).atan().to_degrees()).abs() < 0.05);
+        assert!(
+            (f.fraction - (1.0 - 576.0 / 10_000.0)).abs() < 1e-9,
+            "the object (24 x 24 cells) is not floor: {f:?}"
+        );
     }
 }

@@ -5,6 +5,8 @@
 //!
 //! Per frame:
 //!
+//! 0. depth images first pass the depth-edge filter ([`crate::input::EdgeFilter`]), the
+//!    sensor front end paper 000 assumes: flying pixels behind foreground edges are dropped;
 //! 1. every point's height and height variance come from its covariance in the map frame
 //!    ([`crate::input`]);
 //! 2. the points of a voxel are fused into its filter (eq. 1). All measurements of one voxel
@@ -15,19 +17,30 @@
 //! 4. the vitality counter rises by `V_i` for an updated column and falls by `V_d` for a
 //!    column not updated; above `V_t` it locks and the column is established (only
 //!    established columns are part of the map);
-//! 5. visibility: the sensor saw each updated cell, so the line of sight to it is free. For
-//!    rays from the sensor through the updated cells (far to near, one per azimuth bin: the
-//!    farthest and the lowest), every established cell that rises above the line of sight to
-//!    the updated cell's `h + 3 sigma` loses its voxels above that line (paper 000, section 3.2).
+//! 5. visibility (section 3.2): the sensor saw each updated, established cell, so the line
+//!    of sight to its `h + 3 sigma` is free. Every mapped column at least two cells nearer
+//!    along the same azimuth (bins of [`StackConfig::visibility_bin_m`]) that rises above
+//!    the lowest such line loses its voxels above it. This visits the updated cells from far
+//!    to near as the paper does, as a running minimum over distance per azimuth bin;
+//! 6. see-through (an extension, [`StackConfig::see_through_check`]): a column whose top the
+//!    depth image now sees through loses its top voxel. Flying pixels that hang in an
+//!    obstacle's shadow lie on lines of sight, so step 5 cannot remove them; this can once
+//!    the robot has moved.
+//!
+//! Columns measured in the current frame never lose the voxels measured now.
 //!
 //! The median fill of small holes is applied when the map is exported ([`crate::post`]).
 
-use crate::input::{prepare_binned, Binned, PrimeSenseHeight, RayCache, SensorFrame};
+use crate::input::{
+    prepare_binned, Binned, Cloud, EdgeFilter, PrimeSenseHeight, RayCache, SensorFrame,
+};
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::time::Instant;
+use stride_core::camera::PinholeCamera;
+use stride_core::image::DepthImage;
 
 /// Parameters of [`StackMapper`].
 #[derive(Debug, Clone, PartialEq)]
@@ -46,8 +59,15 @@ pub struct StackConfig {
     pub vitality_threshold: u8,
     /// Run the visibility check.
     pub visibility_check: bool,
-    /// Azimuth bins of the visibility check (rays per frame: up to two per bin).
-    pub visibility_bins: usize,
+    /// Also run the see-through check on depth images (an extension of paper 000): a
+    /// mapped column whose top the sensor now sees through (every pixel of the 3 x 3
+    /// neighbourhood of its projection measures a surface beyond it by more than
+    /// `3 sigma_d + resolution`) loses its top voxel. It removes the flying-pixel phantoms
+    /// that hang in an obstacle's shadow, which the line-of-sight check cannot see.
+    pub see_through_check: bool,
+    /// Lateral tolerance of the visibility check (m): the lines of sight are grouped by
+    /// azimuth in bins this wide at the sensor's far range (`sensor.max_depth_m`).
+    pub visibility_bin_m: f64,
     /// The window is centred this far ahead of the sensor along its horizontal viewing
     /// direction (m).
     pub lookahead_m: f64,
@@ -55,6 +75,9 @@ pub struct StackConfig {
     pub recenter_threshold_m: f64,
     /// The sensor model.
     pub sensor: PrimeSenseHeight,
+    /// Depth-edge (flying pixel) filter on depth images, the sensor front end that paper
+    /// 000 assumes before the map ([`crate::input::EdgeFilter`]); `None` turns it off.
+    pub edge_filter: Option<EdgeFilter>,
 }
 
 impl Default for StackConfig {
@@ -69,10 +92,12 @@ impl Default for StackConfig {
             vitality_decrease: 2,
             vitality_threshold: 7,
             visibility_check: true,
-            visibility_bins: 720,
+            visibility_bin_m: 0.01,
+            see_through_check: true,
             lookahead_m: 1.2,
             recenter_threshold_m: 0.3,
             sensor: PrimeSenseHeight::default(),
+            edge_filter: Some(EdgeFilter::default()),
         }
     }
 }
@@ -99,13 +124,16 @@ struct Acc {
     swh: f32,
 }
 
-/// The voxel stack of a column and this frame's accumulators (kept apart from [`Cell`] so
-/// that the per-point pass and the visibility walk touch little memory).
+/// The voxel stack of a column (kept apart from [`Cell`] so that the passes over the
+/// window touch little memory).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Stack {
     voxels: [Voxel; MAX_VOXELS],
-    acc: [Acc; MAX_ACC],
 }
+
+/// This frame's accumulators of a column (a compact array of their own: the per-point pass
+/// touches only these and the cells).
+type Accs = [Acc; MAX_ACC];
 
 /// A column of the map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -136,16 +164,16 @@ impl Cell {
     /// accumulator of voxel `idx`. False when the column already has `MAX_ACC` distinct
     /// voxels this frame (the measurement is dropped).
     #[inline]
-    fn accumulate(&mut self, st: &mut Stack, idx: i32, z_rel: f32, w: f32) -> bool {
+    fn accumulate(&mut self, acc: &mut Accs, idx: i32, z_rel: f32, w: f32) -> bool {
         let n = usize::from(self.n_acc);
-        for a in st.acc.iter_mut().take(n) {
+        for a in acc.iter_mut().take(n) {
             if a.idx == idx {
                 a.sw += w;
                 a.swh += w * z_rel;
                 return true;
             }
         }
-        match st.acc.get_mut(n) {
+        match acc.get_mut(n) {
             Some(a) => {
                 *a = Acc {
                     idx,
@@ -161,9 +189,16 @@ impl Cell {
 
     /// Applies the frame's accumulated measurements: voxel filters (eq. 1), vitality, and
     /// the cell filter (eq. 2) fed by the highest voxel updated now.
-    fn apply(&mut self, st: &mut Stack, frame_no: u32, voxel_h: f32, cfg: &StackConfig) {
+    fn apply(
+        &mut self,
+        st: &mut Stack,
+        acc: &Accs,
+        frame_no: u32,
+        voxel_h: f32,
+        cfg: &StackConfig,
+    ) {
         let mut highest: Option<(f32, f32, i32)> = None;
-        for a in st.acc.iter().take(usize::from(self.n_acc)) {
+        for a in acc.iter().take(usize::from(self.n_acc)) {
             let bottom = a.idx as f32 * voxel_h;
             let (hm, vm) = (bottom + a.swh / a.sw, 1.0 / a.sw);
             let n = usize::from(self.n_voxels);
@@ -229,9 +264,10 @@ impl Cell {
         }
     }
 
-    /// Removes the voxels above `z` (m) and re-derives the column's height from the highest
-    /// remaining voxel (an empty column is forgotten). Returns whether the column changed.
-    fn cut_above(&mut self, st: &mut Stack, z: f32) -> bool {
+    /// Removes the voxels above `z` (m) that were not measured in frame `frame_no` and
+    /// lowers the column's height to its highest remaining voxel when that is lower (an
+    /// empty column is forgotten). Returns whether the column changed.
+    fn cut_above(&mut self, st: &mut Stack, z: f32, frame_no: u32) -> bool {
         if self.h <= z {
             return false;
         }
@@ -239,88 +275,42 @@ impl Cell {
         let mut kept = [Voxel::default(); MAX_VOXELS];
         let mut m = 0;
         for v in st.voxels.iter().take(n) {
-            if v.h <= z {
+            if v.h <= z || v.last_frame == frame_no {
                 if let Some(slot) = kept.get_mut(m) {
                     *slot = *v;
                     m += 1;
                 }
             }
         }
+        let removed = m < n;
         st.voxels = kept;
         self.n_voxels = m as u8;
         match st.voxels.iter().take(m).max_by_key(|v| v.idx).copied() {
-            Some(top) => {
+            Some(top) if top.h < self.h => {
                 self.h = top.h;
                 self.var = top.var;
+                true
             }
-            None => *self = Cell::default(),
-        }
-        true
-    }
-}
-
-/// A ray of the visibility check: from the sensor to an updated cell.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Ray {
-    /// Horizontal distance from the sensor (m).
-    d: f64,
-    /// Map-frame (x, y) of the updated cell's centre (m).
-    x: f64,
-    y: f64,
-    /// Height the line of sight ends at (m): the cell's `h + 3 sigma`.
-    target: f64,
-}
-
-/// Per azimuth bin: the farthest and the lowest (in elevation angle) ray.
-#[derive(Debug, Clone, Default)]
-struct RayBins {
-    far: Vec<Option<Ray>>,
-    low: Vec<Option<Ray>>,
-}
-
-impl RayBins {
-    fn new(bins: usize) -> Self {
-        Self {
-            far: vec![None; bins],
-            low: vec![None; bins],
-        }
-    }
-
-    /// Offers a ray to bin `b`; `sz` is the sensor height (m). Ties keep the ray offered
-    /// first, so merging per-band bins in band order is deterministic.
-    fn offer(&mut self, b: usize, r: Ray, sz: f64) {
-        if let Some(slot) = self.far.get_mut(b) {
-            if slot.is_none_or(|f| r.d > f.d) {
-                *slot = Some(r);
-            }
-        }
-        if let Some(slot) = self.low.get_mut(b) {
-            if slot.is_none_or(|l| (r.target - sz) / r.d < (l.target - sz) / l.d) {
-                *slot = Some(r);
-            }
-        }
-    }
-
-    fn merge(&mut self, o: &RayBins, sz: f64) {
-        for (b, r) in o.far.iter().enumerate().chain(o.low.iter().enumerate()) {
-            if let Some(r) = r {
-                self.offer(b, *r, sz);
+            Some(_) => removed,
+            None => {
+                *self = Cell::default();
+                true
             }
         }
     }
 }
 
-/// A monotonic stand-in for the azimuth of `(dx, dy)` in `[0, 4)` (the "diamond angle"),
-/// cheaper than `atan2`; bins of equal width in it are at most ~1.4x wider in angle than
-/// others.
-fn pseudo_azimuth(dx: f64, dy: f64) -> f64 {
-    let s = dx.abs() + dy.abs();
+/// A monotonic stand-in for the azimuth of `(x, y)` in `[0, 4)` (the "diamond angle",
+/// counter-clockwise from +x), cheaper than `atan2`. Near +x and -x it changes like the angle
+/// itself; at 45 degrees half as fast.
+fn diamond_angle(x: f64, y: f64) -> f64 {
+    let s = x.abs() + y.abs();
     if s == 0.0 {
         return 0.0;
     }
-    let p = dy / s; // in [-1, 1]
-    if dx >= 0.0 {
-        if dy >= 0.0 {
+    let p = y / s; // in [-1, 1]
+    if x >= 0.0 {
+        if y >= 0.0 {
             p
         } else {
             4.0 + p
@@ -328,6 +318,50 @@ fn pseudo_azimuth(dx: f64, dy: f64) -> f64 {
     } else {
         2.0 - p
     }
+}
+
+/// The polar frame of the visibility check: azimuth bins around the sensor (the seam behind
+/// it) and radial steps of one cell.
+#[derive(Debug, Clone, Copy)]
+struct Polar {
+    sx: f64,
+    sy: f64,
+    /// Unit horizontal heading of the sensor.
+    hx: f64,
+    hy: f64,
+    bins_per_unit: f64,
+    /// 1 / radial step (1/m); the step is two cells.
+    inv_step: f64,
+}
+
+impl Polar {
+    /// (azimuth bin, radial step index, horizontal distance in m) of map point `(x, y)`.
+    #[inline]
+    fn of(&self, x: f64, y: f64) -> (i64, usize, f64) {
+        let (dx, dy) = (x - self.sx, y - self.sy);
+        let f = dx * self.hx + dy * self.hy;
+        let l = dy * self.hx - dx * self.hy;
+        // Heading at 2.0, the seam straight behind the sensor.
+        let q = diamond_angle(-f, -l);
+        let d = (dx * dx + dy * dy).sqrt();
+        (
+            (q * self.bins_per_unit) as i64,
+            (d * self.inv_step) as usize,
+            d,
+        )
+    }
+}
+
+/// A line-of-sight target of the visibility check: an updated, established cell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Target {
+    /// Map-frame position of the cell centre (m).
+    x: f64,
+    y: f64,
+    bin: i64,
+    radial: usize,
+    /// `(h + 3 sigma - z_sensor) / distance` (rise per metre from the sensor).
+    slope: f64,
 }
 
 /// An archived (evicted) column: its exported values.
@@ -345,19 +379,24 @@ pub struct StackMapper {
     window: Window<Cell>,
     /// Voxel stacks, by the same storage index as the window's cells.
     stacks: Vec<Stack>,
+    /// Per-frame accumulators, by the same storage index.
+    accs: Vec<Accs>,
     archive: HashMap<(i64, i64), Archived>,
     rays: RayCache,
     binned: Binned,
     /// Per band: columns not yet established whose vitality may decay.
     pending: Vec<Vec<u32>>,
     band_cells: usize,
+    /// Scratch table of the visibility check (lowest line-of-sight slope per azimuth bin
+    /// and distance).
+    los_table: Vec<f32>,
     frame_no: u32,
     centered: bool,
 }
 
 /// Bands of storage rows that the update runs over in parallel: a fixed number, so that
 /// results never depend on the thread count.
-const BANDS: usize = 8;
+const BANDS: usize = 32;
 
 impl StackMapper {
     /// A mapper with these parameters.
@@ -368,12 +407,14 @@ impl StackMapper {
         Self {
             cfg,
             stacks: vec![Stack::default(); size * size],
+            accs: vec![Accs::default(); size * size],
             window,
             archive: HashMap::new(),
             rays: RayCache::default(),
             binned: Binned::default(),
             pending: vec![Vec::new(); BANDS],
             band_cells,
+            los_table: Vec::new(),
             frame_no: 0,
             centered: false,
         }
@@ -428,108 +469,159 @@ impl StackMapper {
         self.centered = true;
     }
 
-    /// The visibility check of section 3.2 (see the module documentation) along the rays
-    /// collected in `bins`. The rays are walked in parallel, reading the map; the cuts are
-    /// then applied in a fixed order. Returns the number of columns that changed.
-    fn visibility(&mut self, bins: &RayBins, sensor: (f64, f64, f64)) -> usize {
-        let (sx, sy, sz) = sensor;
-        let res = self.window.resolution();
-        let frame_no = self.frame_no;
-        let rays: Vec<Ray> = bins
-            .far
-            .iter()
-            .chain(bins.low.iter())
-            .flatten()
-            .copied()
-            .collect();
-        let cells = self.window.cells();
-        let indexer = self.window.indexer();
-        let mut cuts: Vec<(u32, f32)> = rays
-            .par_iter()
-            .flat_map_iter(|ray| {
-                let mut out = Vec::new();
-                // Walk the cells the segment from the updated cell to the sensor crosses
-                // (a 2-D DDA in cell units), skipping the cell itself and the sensor's
-                // surroundings; cut every mapped column not seen now that rises above the
-                // line of sight. The line of sight within a cell is taken at its highest,
-                // so nothing the ray passes above is cut.
-                let (x0, y0) = (ray.x / res + 0.5, ray.y / res + 0.5);
-                let (x1, y1) = (sx / res + 0.5, sy / res + 0.5);
-                let (dx, dy) = (x1 - x0, y1 - y0);
-                let (mut cx, mut cy) = (x0.floor() as i64, y0.floor() as i64);
-                let (ex, ey) = (x1.floor() as i64, y1.floor() as i64);
-                let (stx, sty) = (if dx > 0.0 { 1 } else { -1 }, if dy > 0.0 { 1 } else { -1 });
-                let (tdx, tdy) = (
-                    if dx != 0.0 {
-                        (1.0 / dx).abs()
-                    } else {
-                        f64::INFINITY
-                    },
-                    if dy != 0.0 {
-                        (1.0 / dy).abs()
-                    } else {
-                        f64::INFINITY
-                    },
-                );
-                let mut tmx = if dx > 0.0 {
-                    ((cx + 1) as f64 - x0) / dx
-                } else if dx < 0.0 {
-                    (cx as f64 - x0) / dx
-                } else {
-                    f64::INFINITY
-                };
-                let mut tmy = if dy > 0.0 {
-                    ((cy + 1) as f64 - y0) / dy
-                } else if dy < 0.0 {
-                    (cy as f64 - y0) / dy
-                } else {
-                    f64::INFINITY
-                };
-                // Line of sight at ray parameter t (0 at the updated cell, 1 at the sensor).
-                let los = |t: f64| ray.target + (sz - ray.target) * t;
-                let stop = 2.0 * res / ray.d.max(res); // parameter span of the last 2 cells
-                let mut t_enter;
-                loop {
-                    t_enter = tmx.min(tmy);
-                    if tmx < tmy {
-                        cx += stx;
-                        tmx += tdx;
-                    } else {
-                        cy += sty;
-                        tmy += tdy;
-                    }
-                    if t_enter >= 1.0 - stop || (cx == ex && cy == ey) {
-                        break;
-                    }
-                    let t_exit = tmx.min(tmy).min(1.0);
-                    let top = los(t_enter).max(los(t_exit));
-                    let (px, py) = ((cx as f64) * res, (cy as f64) * res);
-                    let Some(i) = indexer(px, py) else { continue };
-                    if let Some(c) = cells.get(i) {
-                        if c.mapped() && c.last_frame != frame_no && f64::from(c.h) > top {
-                            out.push((i as u32, top as f32));
-                        }
-                    }
-                }
-                out
-            })
-            .collect();
-        // The same column may be cut by several rays: keep the lowest cut (cutting at each
-        // in turn gives the same result).
-        cuts.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        cuts.dedup_by_key(|c| c.0);
-        let mut removed = 0;
-        let cells = self.window.cells_mut();
-        for (i, z) in cuts {
-            if let (Some(c), Some(st)) =
-                (cells.get_mut(i as usize), self.stacks.get_mut(i as usize))
-            {
-                if c.cut_above(st, z) {
-                    removed += 1;
-                }
+    /// The checks after the update, in one pass over the window's mapped columns:
+    ///
+    /// * the visibility check of section 3.2 (when `targets` is given; see the module
+    ///   documentation). Every updated, established cell is a target: the line of sight
+    ///   from the sensor to its `h + 3 sigma` must be free. Targets are grouped by azimuth
+    ///   bin and distance; from far to near, the lowest line of sight over each distance is
+    ///   the running minimum of the targets' slopes beyond it (two cells of margin). A
+    ///   column that rises above the lowest line of sight of its bin loses the voxels above
+    ///   it (voxels measured in this frame stay);
+    /// * the see-through check (when `image` is given; [`StackConfig::see_through_check`]).
+    ///
+    /// Returns the number of columns changed.
+    fn post_checks(
+        &mut self,
+        targets: Option<&[Target]>,
+        polar: &Polar,
+        sz: f64,
+        image: Option<(&DepthImage, &PinholeCamera, &nalgebra::Isometry3<f64>)>,
+    ) -> usize {
+        let targets = targets.unwrap_or(&[]);
+        let (bmin, bmax) = (
+            targets.iter().map(|t| t.bin).min().unwrap_or(0),
+            targets.iter().map(|t| t.bin).max().unwrap_or(-1),
+        );
+        let radial = targets.iter().map(|t| t.radial).max().map_or(0, |r| r + 1);
+        let nb = (bmax - bmin + 1).max(0) as usize;
+        // Lowest slope per (bin, radial index), then the running minimum from far to near.
+        let table = &mut self.los_table;
+        table.clear();
+        table.resize(nb * radial, f32::INFINITY);
+        for t in targets {
+            if let Some(v) = table.get_mut((t.bin - bmin) as usize * radial + t.radial) {
+                *v = v.min(t.slope as f32);
             }
         }
-        removed
+        if radial > 0 {
+            table.par_chunks_mut(radial).for_each(|row| {
+                let mut run = f32::INFINITY;
+                for v in row.iter_mut().rev() {
+                    run = run.min(*v);
+                    *v = run;
+                }
+            });
+        }
+        if targets.is_empty() && image.is_none() {
+            return 0;
+        }
+        let table = &self.los_table;
+        // Only columns around the targets and the sensor can be cut: those beyond every
+        // target have no line of sight over them, and the see-through check needs a surface
+        // beyond the column (the whole window when there are no targets).
+        let bbox = if targets.is_empty() {
+            (
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+            )
+        } else {
+            targets
+                .iter()
+                .fold((polar.sx, polar.sx, polar.sy, polar.sy), |b, t| {
+                    (b.0.min(t.x), b.1.max(t.x), b.2.min(t.y), b.3.max(t.y))
+                })
+        };
+        let frame_no = self.frame_no;
+        let locate = self.window.locator();
+        let band_cells = self.band_cells;
+        let polar = *polar;
+        let voxel_h = self.cfg.voxel_height_m as f32;
+        let res = self.cfg.resolution_m;
+        let model = self.cfg.sensor;
+        let see = image.map(|(depth, camera, map_from_sensor)| {
+            (
+                depth.as_slice(),
+                depth.width() as i64,
+                depth.height() as i64,
+                camera,
+                map_from_sensor.inverse(),
+            )
+        });
+        self.window
+            .cells_mut()
+            .par_chunks_mut(band_cells)
+            .zip(self.stacks.par_chunks_mut(band_cells))
+            .enumerate()
+            .map(|(band, (cells, stacks))| {
+                let mut changed = 0;
+                for (k, (c, st)) in cells.iter_mut().zip(stacks.iter_mut()).enumerate() {
+                    if !c.mapped() {
+                        continue;
+                    }
+                    let (x, y) = locate(band * band_cells + k);
+                    if !(x >= bbox.0 && x <= bbox.1 && y >= bbox.2 && y <= bbox.3) {
+                        continue;
+                    }
+                    let mut hit = false;
+                    // Line of sight to the targets two radial steps on (at least two cells
+                    // farther than this column).
+                    let (bin, r, d) = polar.of(x, y);
+                    if bin >= bmin && bin <= bmax && d >= 2.0 * res {
+                        if let Some(&slope) = table
+                            .get((bin - bmin) as usize * radial + r + 2)
+                            .filter(|_| r + 2 < radial)
+                        {
+                            let los = sz + f64::from(slope) * d;
+                            if slope.is_finite() && f64::from(c.h) > los {
+                                hit |= c.cut_above(st, los as f32, frame_no);
+                            }
+                        }
+                    }
+                    // See-through: every ray around the column top's projection ends beyond it.
+                    // Only columns in the azimuth range of this frame's targets can be in
+                    // view (all of them when there are no targets).
+                    let in_view = targets.is_empty() || (bin >= bmin - 8 && bin <= bmax + 8);
+                    if let (Some((pixels, w, h, camera, sensor_from_map)), true) =
+                        (&see, in_view && c.mapped())
+                    {
+                        let q = sensor_from_map * nalgebra::Point3::new(x, y, f64::from(c.h));
+                        if q.z >= model.min_depth_m && q.z <= model.max_depth_m {
+                            if let Some(px) = camera.project(&q) {
+                                let (u, v) =
+                                    ((px.x + 0.5).floor() as i64, (px.y + 0.5).floor() as i64);
+                                if u >= 1 && v >= 1 && u < w - 1 && v < h - 1 {
+                                    // `d - 3 sigma_d(d)` grows with d, so the nearest of the nine
+                                    // decides (a missing return counts as not free).
+                                    let mut nearest = f32::INFINITY;
+                                    for dv in -1..=1 {
+                                        let row = (v + dv) * w;
+                                        if let Some(three) = pixels
+                                            .get((row + u - 1) as usize..(row + u + 2) as usize)
+                                        {
+                                            for &d in three {
+                                                nearest =
+                                                    nearest.min(if d > 0.0 { d } else { 0.0 });
+                                            }
+                                        }
+                                    }
+                                    let d = f64::from(nearest);
+                                    let free = d.is_finite()
+                                        && d > q.z + 3.0 * model.model.sigma_d(d) + res;
+                                    if free {
+                                        hit |= c.cut_above(st, c.h - voxel_h, frame_no);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    changed += usize::from(hit);
+                }
+                changed
+            })
+            .sum()
     }
 }
 
@@ -549,6 +641,7 @@ impl ElevationMapper for StackMapper {
                 &mut self.rays,
                 |_, _| None,
                 1,
+                None,
                 &mut self.binned,
             );
             return UpdateStats {
@@ -566,8 +659,10 @@ impl ElevationMapper for StackMapper {
             &mut self.rays,
             self.window.band_indexer(size.div_ceil(BANDS)),
             BANDS,
+            cfg.edge_filter.as_ref(),
             &mut self.binned,
         );
+        let prepare_s = start.elapsed().as_secs_f64();
         let voxel_h = cfg.voxel_height_m as f32;
         let inv_voxel_h = 1.0 / voxel_h;
         let frame_no = self.frame_no;
@@ -575,22 +670,40 @@ impl ElevationMapper for StackMapper {
         let locate = self.window.locator();
         let s = frame.map_from_sensor.translation.vector;
         let (sx, sy, sz) = (s.x, s.y, s.z);
-        let bins_n = cfg.visibility_bins.max(8);
+        let fwd = frame.map_from_sensor.rotation * nalgebra::Vector3::z();
+        let heading = nalgebra::Vector2::new(fwd.x, fwd.y);
+        let heading = if heading.norm() > 1e-9 {
+            heading.normalize()
+        } else {
+            nalgebra::Vector2::x()
+        };
+        // Bins of `visibility_bin_m` at the far range; a pseudo-angle unit is about a radian
+        // ahead of the sensor.
+        let far_m = cfg.sensor.max_depth_m.max(cfg.resolution_m);
+        let polar = Polar {
+            sx,
+            sy,
+            hx: heading.x,
+            hy: heading.y,
+            bins_per_unit: far_m / cfg.visibility_bin_m.max(1e-4),
+            inv_step: 0.5 / cfg.resolution_m,
+        };
         let min_d = 2.0 * cfg.resolution_m;
-        let results: Vec<(usize, usize, RayBins)> = self
+        let results: Vec<(usize, usize, Vec<Target>)> = self
             .window
             .cells_mut()
             .par_chunks_mut(band_cells)
             .zip(self.stacks.par_chunks_mut(band_cells))
+            .zip(self.accs.par_chunks_mut(band_cells))
             .zip(self.pending.par_iter_mut())
             .enumerate()
-            .map(|(b, ((cells, stacks), pending))| {
+            .map(|(b, (((cells, stacks), accs), pending))| {
                 let lo = b * band_cells;
                 let (mut used, mut overflow) = (0usize, 0usize);
                 let mut touched: Vec<u32> = Vec::new();
                 for p in binned.band(b) {
                     let k = p.cell as usize - lo;
-                    let (Some(cell), Some(st)) = (cells.get_mut(k), stacks.get_mut(k)) else {
+                    let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
                         continue;
                     };
                     if cell.n_acc == 0 {
@@ -598,32 +711,37 @@ impl ElevationMapper for StackMapper {
                     }
                     let idx_f = (p.z_m * inv_voxel_h).floor();
                     let idx = idx_f as i32;
-                    if cell.accumulate(st, idx, p.z_m - idx_f * voxel_h, 1.0 / p.var_m2) {
+                    if cell.accumulate(acc, idx, p.z_m - idx_f * voxel_h, 1.0 / p.var_m2) {
                         used += 1;
                     } else {
                         overflow += 1;
                     }
                 }
-                let mut bins = RayBins::new(if cfg.visibility_check { bins_n } else { 0 });
+                let mut targets = Vec::new();
                 for &ci in &touched {
                     let k = ci as usize - lo;
-                    let (Some(c), Some(st)) = (cells.get_mut(k), stacks.get_mut(k)) else {
+                    let (Some(c), Some(st), Some(acc)) =
+                        (cells.get_mut(k), stacks.get_mut(k), accs.get(k))
+                    else {
                         continue;
                     };
-                    c.apply(st, frame_no, voxel_h, &cfg);
+                    c.apply(st, acc, frame_no, voxel_h, &cfg);
                     if !c.established && !c.pending {
                         c.pending = true;
                         pending.push(ci);
                     }
                     if cfg.visibility_check && c.mapped() && c.last_frame == frame_no {
                         let (x, y) = locate(ci as usize);
-                        let (dx, dy) = (x - sx, y - sy);
-                        let d = dx.hypot(dy);
+                        let (bin, radial, d) = polar.of(x, y);
                         if d >= min_d {
-                            let bin = ((pseudo_azimuth(dx, dy) * 0.25 * bins_n as f64) as usize)
-                                .min(bins_n - 1);
-                            let target = f64::from(c.h) + 3.0 * f64::from(c.var).max(0.0).sqrt();
-                            bins.offer(bin, Ray { d, x, y, target }, sz);
+                            let top = f64::from(c.h) + 3.0 * f64::from(c.var).max(0.0).sqrt();
+                            targets.push(Target {
+                                x,
+                                y,
+                                bin,
+                                radial,
+                                slope: (top - sz) / d,
+                            });
                         }
                     }
                 }
@@ -645,27 +763,37 @@ impl ElevationMapper for StackMapper {
                     }
                     true
                 });
-                (used, overflow, bins)
+                (used, overflow, targets)
             })
             .collect();
         let (mut used, mut overflow) = (0, 0);
-        let mut bins = RayBins::new(if cfg.visibility_check { bins_n } else { 0 });
-        for (u, o, b) in &results {
+        let mut targets = Vec::new();
+        for (u, o, t) in results {
             used += u;
             overflow += o;
-            bins.merge(b, sz);
+            targets.extend(t);
         }
-        let cleared = if cfg.visibility_check {
-            self.visibility(&bins, (sx, sy, sz))
-        } else {
-            0
+        let image = match (cfg.see_through_check, frame.cloud) {
+            (true, Cloud::Depth { depth_m, camera }) => {
+                Some((depth_m, camera, &frame.map_from_sensor))
+            }
+            _ => None,
         };
+        let checks_start = Instant::now();
+        let cleared = self.post_checks(
+            cfg.visibility_check.then_some(&targets[..]),
+            &polar,
+            sz,
+            image,
+        );
         UpdateStats {
             points_used: used,
             points_overflow: overflow,
             rejected: rej,
             cells_cleared: cleared,
             update_s: start.elapsed().as_secs_f64(),
+            prepare_s,
+            checks_s: checks_start.elapsed().as_secs_f64(),
         }
     }
 
@@ -690,5 +818,277 @@ impl ElevationMapper for StackMapper {
                 .iter()
                 .map(|(&k, a)| (k, a.h, a.var, f32::from(a.vitality), a.updates as f32)),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::Cloud;
+    use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+
+    /// A sensor 0.5 m above the origin looking along +x (camera z forward, x right, y down).
+    fn sensor_pose() -> Isometry3<f64> {
+        let rot = nalgebra::Rotation3::from_basis_unchecked(&[
+            -Vector3::y(),
+            -Vector3::z(),
+            Vector3::x(),
+        ]);
+        Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 0.5),
+            UnitQuaternion::from_rotation_matrix(&rot),
+        )
+    }
+
+    /// Integrates world points (5 mm standard deviation) as one frame.
+    fn integrate(
+        m: &mut dyn ElevationMapper,
+        pose: Isometry3<f64>,
+        world: &[Point3<f64>],
+    ) -> UpdateStats {
+        let inv = pose.inverse();
+        let pts: Vec<Point3<f64>> = world.iter().map(|p| inv * p).collect();
+        let covs = vec![Matrix3::identity() * 2.5e-5; pts.len()];
+        m.integrate(&SensorFrame {
+            cloud: Cloud::Points {
+                points: &pts,
+                covariances: &covs,
+            },
+            map_from_sensor: pose,
+            time_s: 0.0,
+        })
+    }
+
+    /// Ground points (z = 0) on a 5 mm lattice over `[x0, x1] x [y0, y1]`.
+    fn ground(x0: f64, x1: f64, y0: f64, y1: f64) -> Vec<Point3<f64>> {
+        let n = |a: f64, b: f64| ((b - a) / 0.005) as usize;
+        (0..n(x0, x1))
+            .flat_map(|i| {
+                (0..n(y0, y1))
+                    .map(move |j| Point3::new(x0 + 0.005 * i as f64, y0 + 0.005 * j as f64, 0.0))
+            })
+            .collect()
+    }
+
+    fn height_at(m: &dyn ElevationMapper, x: f64, y: f64) -> Option<f32> {
+        m.export().elevation.at(x, y).filter(|h| !h.is_nan())
+    }
+
+    /// The first difference between two maps (layer, cell, values), bit for bit.
+    fn first_difference(a: &MapLayers, b: &MapLayers) -> Option<String> {
+        if a.elevation.geometry != b.elevation.geometry {
+            return Some(format!(
+                "geometry {:?} vs {:?}",
+                a.elevation.geometry, b.elevation.geometry
+            ));
+        }
+        let layers = [
+            ("elevation", &a.elevation, &b.elevation),
+            ("variance", &a.variance, &b.variance),
+            ("vitality", &a.vitality, &b.vitality),
+            ("updates", &a.updates, &b.updates),
+        ];
+        for (name, x, y) in layers {
+            for (i, (u, v)) in x.as_slice().iter().zip(y.as_slice()).enumerate() {
+                if u.to_bits() != v.to_bits() {
+                    return Some(format!("{name}[{i}]: {u} vs {v}"));
+                }
+            }
+        }
+        None
+    }
+
+    fn config() -> StackConfig {
+        StackConfig {
+            edge_filter: None,
+            see_through_check: false,
+            ..StackConfig::default()
+        }
+    }
+
+    #[test]
+    fn vitality_establishes_a_column_after_three_updates_and_forgets_isolated_ones() {
+        let mut m = StackMapper::new(config());
+        let patch = ground(1.0, 1.05, 0.0, 0.05);
+        let speck = [Point3::new(1.5, 0.5, 0.3)];
+        integrate(
+            &mut m,
+            sensor_pose(),
+            &[patch.clone(), speck.to_vec()].concat(),
+        );
+        assert!(
+            height_at(&m, 1.02, 0.02).is_none(),
+            "V = 3 after one update"
+        );
+        integrate(&mut m, sensor_pose(), &patch);
+        assert!(height_at(&m, 1.02, 0.02).is_none(), "V = 6 after two");
+        integrate(&mut m, sensor_pose(), &patch);
+        let h = height_at(&m, 1.02, 0.02).expect("V = 9 > 7: established");
+        assert!(h.abs() < 0.005, "{h}");
+        for _ in 0..5 {
+            integrate(&mut m, sensor_pose(), &patch);
+        }
+        assert!(
+            height_at(&m, 1.5, 0.5).is_none(),
+            "a single return never makes the map"
+        );
+    }
+
+    #[test]
+    fn visibility_check_removes_an_obstacle_the_sensor_sees_past() {
+        for check in [true, false] {
+            let mut m = StackMapper::new(StackConfig {
+                visibility_check: check,
+                ..config()
+            });
+            // A spurious 30 cm obstacle at 1 m (e.g. from an earlier pose error), seen three
+            // times so that it is established.
+            let spurious: Vec<Point3<f64>> = ground(1.0, 1.03, -0.015, 0.015)
+                .iter()
+                .map(|p| Point3::new(p.x, p.y, 0.3))
+                .collect();
+            for _ in 0..3 {
+                integrate(&mut m, sensor_pose(), &spurious);
+            }
+            assert!(height_at(&m, 1.01, 0.0).is_some_and(|h| (h - 0.3).abs() < 0.01));
+            // Now the floor 2-3 m away is seen straight past where it stood: the line of
+            // sight to it passes 0.33 m above the floor at 1 m, lower than the obstacle.
+            for _ in 0..4 {
+                integrate(&mut m, sensor_pose(), &ground(2.0, 3.0, -0.1, 0.1));
+            }
+            let h = height_at(&m, 1.01, 0.0);
+            if check {
+                assert!(h.is_none_or(|h| h < 0.25), "the occluder is cut: {h:?}");
+            } else {
+                assert!(
+                    h.is_some_and(|h| (h - 0.3).abs() < 0.01),
+                    "without the check it stays: {h:?}"
+                );
+            }
+        }
+    }
+
+    /// A mapper with an established 1 m x 0.2 m patch of floor, and its exported layers.
+    fn mapped(m: &mut dyn ElevationMapper) -> MapLayers {
+        for _ in 0..3 {
+            integrate(m, sensor_pose(), &ground(1.0, 2.0, -0.1, 0.1));
+        }
+        m.export()
+    }
+
+    #[test]
+    fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
+        let mappers: [fn() -> Box<dyn ElevationMapper>; 2] = [
+            || Box::new(StackMapper::new(config())),
+            || {
+                Box::new(crate::fankhauser::FankhauserMapper::new(
+                    crate::fankhauser::FankhauserConfig::default(),
+                ))
+            },
+        ];
+        for make in mappers {
+            let mut m = make();
+            let before = mapped(m.as_mut());
+            assert!(before.cells_observed() > 1000, "{}", m.name());
+            let pose = sensor_pose();
+            // NaN and infinite points.
+            let bad = [
+                Point3::new(f64::NAN, 0.0, 1.0),
+                Point3::new(0.0, f64::INFINITY, 1.0),
+                Point3::new(0.0, 0.0, f64::NEG_INFINITY),
+            ];
+            let s = m.integrate(&SensorFrame {
+                cloud: Cloud::Points {
+                    points: &bad,
+                    covariances: &[Matrix3::identity() * 1e-4; 3],
+                },
+                map_from_sensor: pose,
+                time_s: 0.1,
+            });
+            assert_eq!(
+                (s.rejected.non_finite, s.points_used),
+                (3, 0),
+                "{}",
+                m.name()
+            );
+            // Points outside the 4 m window (inside the sensor's range).
+            let s = integrate(
+                m.as_mut(),
+                pose,
+                &[Point3::new(1.5, 3.0, 0.0), Point3::new(1.5, -3.0, 0.0)],
+            );
+            assert_eq!(
+                (s.rejected.outside_window, s.points_used),
+                (2, 0),
+                "{}",
+                m.name()
+            );
+            // Zero, negative and NaN variances.
+            let p = [Point3::new(0.0, 0.0, 1.5); 3];
+            let covs = [
+                Matrix3::zeros(),
+                Matrix3::identity() * -1e-4,
+                Matrix3::identity() * f64::NAN,
+            ];
+            let s = m.integrate(&SensorFrame {
+                cloud: Cloud::Points {
+                    points: &p,
+                    covariances: &covs,
+                },
+                map_from_sensor: pose,
+                time_s: 0.2,
+            });
+            assert_eq!(
+                (s.rejected.bad_variance, s.points_used),
+                (3, 0),
+                "{}",
+                m.name()
+            );
+            // A NaN pose drops the whole frame.
+            let nan_pose =
+                Isometry3::from_parts(Translation3::new(f64::NAN, 0.0, 0.5), pose.rotation);
+            let floor = ground(1.0, 2.0, -0.1, 0.1);
+            let s = integrate(m.as_mut(), nan_pose, &floor);
+            assert_eq!(
+                (s.rejected.bad_pose, s.points_used),
+                (floor.len(), 0),
+                "{}",
+                m.name()
+            );
+            assert_eq!(
+                first_difference(&m.export(), &before),
+                None,
+                "{}: the map is unchanged",
+                m.name()
+            );
+        }
+    }
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut m = StackMapper::new(StackConfig::default());
+                let mut pts = ground(0.8, 2.5, -0.6, 0.6);
+                pts.extend(
+                    ground(1.2, 1.4, -0.1, 0.1)
+                        .iter()
+                        .map(|p| Point3::new(p.x, p.y, 0.2)),
+                );
+                for k in 0..4 {
+                    let pose = Isometry3::from_parts(
+                        Translation3::new(0.02 * k as f64, 0.0, 0.5),
+                        sensor_pose().rotation,
+                    );
+                    integrate(&mut m, pose, &pts);
+                }
+                m.export()
+            })
+        };
+        assert_eq!(first_difference(&run(1), &run(2)), None);
     }
 }

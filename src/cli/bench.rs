@@ -34,6 +34,18 @@ pub struct MapBenchArgs {
     /// Frames mapped (the median update time is reported).
     #[arg(long, default_value_t = 60)]
     frames: usize,
+    /// Which mappers to time.
+    #[arg(long, value_enum, default_value = "both")]
+    mapper: crate::cli::map::MapperArg,
+    /// Time the stack mapper without its depth-edge filter.
+    #[arg(long)]
+    no_edge_filter: bool,
+    /// Time the stack mapper without the visibility check.
+    #[arg(long)]
+    no_visibility: bool,
+    /// Time the stack mapper without the see-through check.
+    #[arg(long)]
+    no_see_through: bool,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -179,29 +191,59 @@ fn bench_map(a: MapBenchArgs) -> Result<()> {
         .map(|(f, _)| f.depth_m.as_slice().iter().filter(|&&z| z > 0.0).count() as f64)
         .sum::<f64>()
         / frames.len() as f64;
-    let mut mappers: Vec<Box<dyn ElevationMapper>> = vec![
-        Box::new(StackMapper::new(StackConfig::default())),
-        Box::new(FankhauserMapper::new(FankhauserConfig::default())),
-    ];
+    use crate::cli::map::MapperArg;
+    let mut mappers: Vec<Box<dyn ElevationMapper>> = Vec::new();
+    if a.mapper != MapperArg::Fankhauser {
+        let d = StackConfig::default();
+        mappers.push(Box::new(StackMapper::new(StackConfig {
+            edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
+            visibility_check: !a.no_visibility,
+            see_through_check: !a.no_see_through,
+            ..d
+        })));
+    }
+    if a.mapper != MapperArg::Stack {
+        mappers.push(Box::new(FankhauserMapper::new(FankhauserConfig::default())));
+    }
     let mut out = serde_json::Map::new();
-    for m in &mut mappers {
-        let (mut times, mut used) = (Vec::new(), 0usize);
-        for (f, pose) in &frames {
-            let sf = SensorFrame {
-                cloud: Cloud::Depth {
-                    depth_m: &f.depth_m,
-                    camera: &seq.camera.camera,
-                },
-                map_from_sensor: *pose,
-                time_s: f.t_depth_s,
-            };
+    // The mappers take turns frame by frame, so that both see the same machine state (these
+    // VMs drift by tens of percent within a minute); the ratio of medians is the figure to
+    // trust.
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); mappers.len()];
+    let mut phases: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; mappers.len()];
+    let mut used = vec![0usize; mappers.len()];
+    for (f, pose) in &frames {
+        let sf = SensorFrame {
+            cloud: Cloud::Depth {
+                depth_m: &f.depth_m,
+                camera: &seq.camera.camera,
+            },
+            map_from_sensor: *pose,
+            time_s: f.t_depth_s,
+        };
+        for (((m, t), u), ph) in mappers
+            .iter_mut()
+            .zip(&mut times)
+            .zip(&mut used)
+            .zip(&mut phases)
+        {
             let s = m.integrate(&sf);
-            times.push(s.update_s);
-            used += s.points_used;
+            t.push(s.update_s);
+            let [p, c] = ph;
+            p.push(s.prepare_s);
+            c.push(s.checks_s);
+            *u += s.points_used;
         }
-        let total: f64 = times.iter().sum();
-        let (med, p95) = crate::pipeline::median_p95(times.iter().copied());
-        out.insert(m.name().into(), json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "points_per_s": used as f64 / total}));
+    }
+    for (((m, t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
+        let total: f64 = t.iter().sum();
+        let (med, p95) = crate::pipeline::median_p95(t.iter().copied());
+        let (pm, _) = crate::pipeline::median_p95(p.iter().copied());
+        let (cm, _) = crate::pipeline::median_p95(c.iter().copied());
+        out.insert(
+            m.name().into(),
+            json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total}),
+        );
     }
     if a.json {
         crate::outln!(

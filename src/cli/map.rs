@@ -16,8 +16,10 @@ use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
 use stride_mapping::input::{Cloud, Rejections, SensorFrame};
-use stride_mapping::metrics::{compare, performance_index, MapScore};
-use stride_mapping::post::median_fill;
+use stride_mapping::metrics::{
+    compare, floor_fit, performance_index, phantoms, FloorFit, MapScore, PhantomScore,
+};
+use stride_mapping::post::{median_filter, MedianFilter, MedianStats};
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers};
 
@@ -73,6 +75,15 @@ pub struct MapArgs {
     /// Turn off the visibility check of the stack mapper.
     #[arg(long)]
     pub no_visibility: bool,
+    /// Turn off the see-through check of the stack mapper.
+    #[arg(long)]
+    pub no_see_through: bool,
+    /// Turn off the stack mapper's depth-edge (flying pixel) filter.
+    #[arg(long)]
+    pub no_edge_filter: bool,
+    /// Write the stack map without the median filter (hole filling, isolated-cell removal).
+    #[arg(long)]
+    pub no_median_filter: bool,
 }
 
 /// A mapper's results over the sequence.
@@ -89,10 +100,14 @@ pub struct MapperRun {
     pub rejected: Rejections,
     /// Columns cleared by the visibility check.
     pub cells_cleared: usize,
-    /// Holes filled by the median filter.
-    pub cells_filled: usize,
+    /// What the median filter changed (stack mapper only).
+    pub median: MedianStats,
     /// Comparison with ground truth.
     pub score: Option<MapScore>,
+    /// Phantom obstacles over flat ground truth.
+    pub phantoms: Option<PhantomScore>,
+    /// The floor's plane fit.
+    pub floor: Option<FloorFit>,
 }
 
 /// Perturbs a trajectory with a seeded random-walk drift: translation error growing by
@@ -125,15 +140,21 @@ pub fn drifted(traj: &Trajectory, percent: f64, seed: u64) -> Result<Trajectory>
     Ok(out)
 }
 
+/// The stack mapper's parameters from the command line.
+pub fn stack_config(a: &MapArgs) -> StackConfig {
+    let d = StackConfig::default();
+    StackConfig {
+        resolution_m: a.resolution,
+        size_m: a.size,
+        visibility_check: !a.no_visibility,
+        see_through_check: !a.no_see_through,
+        edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
+        ..d
+    }
+}
+
 fn make_mappers(a: &MapArgs) -> Vec<Box<dyn ElevationMapper>> {
-    let stack = || -> Box<dyn ElevationMapper> {
-        Box::new(StackMapper::new(StackConfig {
-            resolution_m: a.resolution,
-            size_m: a.size,
-            visibility_check: !a.no_visibility,
-            ..StackConfig::default()
-        }))
-    };
+    let stack = || -> Box<dyn ElevationMapper> { Box::new(StackMapper::new(stack_config(a))) };
     let fank = || -> Box<dyn ElevationMapper> {
         Box::new(FankhauserMapper::new(FankhauserConfig {
             resolution_m: a.resolution,
@@ -146,6 +167,15 @@ fn make_mappers(a: &MapArgs) -> Vec<Box<dyn ElevationMapper>> {
         MapperArg::Fankhauser => vec![fank()],
         MapperArg::Both => vec![stack(), fank()],
     }
+}
+
+/// Cells within this height of the floor plane (m) count as floor in the flatness fit.
+pub const FLOOR_BAND_M: f64 = 0.10;
+
+/// Phantom obstacles: cells more than 2 cm above ground truth that is flat (within 1 cm)
+/// over 5 cm around.
+pub fn phantom_score(map: &Grid<f32>, gt: &Grid<f32>) -> PhantomScore {
+    phantoms(map, gt, 0.05, 0.01, 0.02)
 }
 
 /// Frames mapped and skipped.
@@ -161,13 +191,15 @@ pub struct FrameCounts {
     pub unreadable: usize,
 }
 
-/// Maps a sequence with the given poses into each mapper; returns per-mapper runs.
+/// Maps a sequence with the given poses into each mapper; returns per-mapper runs. With
+/// `median`, the stack map gets paper 000's median filter before it is scored.
 pub fn map_sequence(
     seq: &TumSequence,
     poses: &Trajectory,
     mut mappers: Vec<Box<dyn ElevationMapper>>,
     max_frames: Option<usize>,
     gt: Option<&Grid<f32>>,
+    median: bool,
 ) -> Result<(Vec<MapperRun>, FrameCounts)> {
     let stream = seq.stream(max_frames, 4);
     let pb = ProgressBar::new(stream.len() as u64);
@@ -219,12 +251,18 @@ pub fn map_sequence(
     for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
         let mut layers = m.export();
         // The median fill is part of paper 000's method, not of the baseline.
-        let cells_filled = if m.name() == "stack" {
-            median_fill(&mut layers.elevation, &mut layers.variance, 5)
+        let median = if m.name() == "stack" && median {
+            median_filter(
+                &mut layers.elevation,
+                &mut layers.variance,
+                &MedianFilter::default(),
+            )
         } else {
-            0
+            MedianStats::default()
         };
         let score = gt.and_then(|g| compare(&layers.elevation, g));
+        let phantoms = gt.map(|g| phantom_score(&layers.elevation, g));
+        let floor = floor_fit(&layers.elevation, FLOOR_BAND_M);
         runs.push(MapperRun {
             name: m.name(),
             layers,
@@ -232,8 +270,10 @@ pub fn map_sequence(
             points_used,
             rejected,
             cells_cleared,
-            cells_filled,
+            median,
             score,
+            phantoms,
+            floor,
         });
     }
     Ok((runs, counts))
@@ -262,6 +302,18 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
         m.insert("coverage".into(), Value::Null);
     }
     m.insert("cells_observed".into(), json!(r.layers.cells_observed()));
+    if let Some(p) = &r.phantoms {
+        m.insert(
+            "phantoms".into(),
+            serde_json::to_value(p).unwrap_or(Value::Null),
+        );
+    }
+    m.insert(
+        "floor".into(),
+        r.floor
+            .and_then(|f| serde_json::to_value(f).ok())
+            .unwrap_or(Value::Null),
+    );
     m.insert(
         "update_ms".into(),
         json!({"median": med * 1e3, "p95": p95 * 1e3}),
@@ -280,7 +332,10 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
         serde_json::to_value(r.rejected).unwrap_or(Value::Null),
     );
     m.insert("cells_cleared_by_visibility".into(), json!(r.cells_cleared));
-    m.insert("cells_filled_by_median".into(), json!(r.cells_filled));
+    m.insert(
+        "median_filter".into(),
+        serde_json::to_value(r.median).unwrap_or(Value::Null),
+    );
     m.insert("frames".into(), json!(counts.frames));
     m.insert("frames_mapped".into(), json!(counts.mapped));
     m.insert("frames_skipped_no_pose".into(), json!(counts.no_pose));
@@ -348,7 +403,14 @@ pub fn run(a: MapArgs) -> Result<()> {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
     };
-    let (runs, counts) = map_sequence(&seq, &poses, make_mappers(&a), a.max_frames, gt.as_ref())?;
+    let (runs, counts) = map_sequence(
+        &seq,
+        &poses,
+        make_mappers(&a),
+        a.max_frames,
+        gt.as_ref(),
+        !a.no_median_filter,
+    )?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut report = Map::new();
     let mut rep = Report::new("stride map: elevation map");
@@ -385,10 +447,27 @@ pub fn run(a: MapArgs) -> Result<()> {
         } else {
             "elevation.png".to_owned()
         };
-        rep.image(
-            &rel,
-            format!("{}: elevation (colour relief, +y up).", r.name),
-        );
+        let mut caption = format!("{}: elevation (colour relief, +y up).", r.name);
+        if let Some(f) = &r.floor {
+            caption.push_str(&format!(
+                " Floor: {} cells ({:.0} % of the map) fit a plane tilted {:.2} deg from the world x-y plane; heights about it: std {:.1} cm, 95 % within {:.1} cm.",
+                f.cells,
+                100.0 * f.fraction,
+                f.tilt_deg,
+                100.0 * f.residual_std_m,
+                100.0 * f.residual_p95_m
+            ));
+        }
+        if let Some(p) = &r.phantoms {
+            caption.push_str(&format!(
+                " Phantoms: {} of {} cells over flat ground truth stand more than {:.0} cm above it (highest {:.1} cm).",
+                p.phantoms,
+                p.flat_cells,
+                100.0 * p.threshold_m,
+                100.0 * p.max_excess_m
+            ));
+        }
+        rep.image(&rel, caption);
         if runs.len() > 1 {
             report.insert(r.name.into(), j);
         } else {
@@ -419,6 +498,22 @@ pub fn run(a: MapArgs) -> Result<()> {
         json!(gt_path.as_ref().map(|p| p.display().to_string())),
     );
     report.insert("drift_percent".into(), json!(a.drift));
+    if a.mapper != MapperArg::Fankhauser {
+        let c = stack_config(&a);
+        report.insert(
+            "stack_config".into(),
+            json!({
+                "resolution_m": c.resolution_m,
+                "size_m": c.size_m,
+                "voxel_height_m": c.voxel_height_m,
+                "vitality": [c.vitality_increase, c.vitality_decrease, c.vitality_threshold],
+                "visibility_check": c.visibility_check,
+                "see_through_check": c.see_through_check,
+                "edge_filter": c.edge_filter.is_some(),
+                "median_filter": !a.no_median_filter,
+            }),
+        );
+    }
     write_atomic(
         &a.out.join("report.json"),
         serde_json::to_string_pretty(&Value::Object(report.clone()))?.as_bytes(),
