@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# The main job. For now (foundation): evaluate the shared fr1/xyz RGB-D SLAM estimate against
-# its ground truth and write a report into out/demo. Extra arguments go to `stride eval ate`.
+# The main job: the whole pipeline on the embedded synthetic sequence. Renders a hexapod's
+# RGB-D sequence with ground-truth poses and terrain, tracks it with the visual odometry, maps
+# the terrain (our mapper and the Fankhauser baseline, with ground-truth and with odometry
+# poses) and writes out/demo/report.html. Installs what is missing first (scripts/setup.sh).
+# Extra arguments go to `stride demo` (e.g. --frames 150, --seed 2, --no-blur).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
 cargo build --release --locked --bin stride
-data="${STRIDE_DATA:-../shared/data}/trajectories"
-target/release/stride eval ate --gt "$data/freiburg1_xyz-groundtruth.txt" \
-    --est "$data/freiburg1_xyz-rgbdslam.txt" --align se3 --report out/demo "$@"
-echo "report: out/demo/report.html"
+target/release/stride demo --out out/demo "$@"

@@ -360,6 +360,28 @@ pub fn write_layers(dir: &Path, layers: &MapLayers) -> Result<()> {
 pub const MAP_FRAME_NOTE: &str = "map frame = the pose file's world frame (z up, metres); each depth pixel is back-projected in the camera frame (x right, y down, z forward) and placed with world_from_camera interpolated at the depth image's time";
 
 pub fn run(a: MapArgs) -> Result<()> {
+    let (report, runs, counts) = execute(&a)?;
+    let _ = report;
+    for r in &runs {
+        let j = run_json(r, &counts);
+        crate::outln!(
+            "{:<11} MSE {} m², coverage {}, {} cells, update {:.2} ms median ({:.2} p95), {:.2e} points/s",
+            r.name,
+            j["mse"].as_f64().map_or("-".into(), |v| format!("{v:.3e}")),
+            j["coverage"].as_f64().map_or("-".into(), |v| format!("{v:.3}")),
+            j["cells_observed"],
+            j["update_ms"]["median"].as_f64().unwrap_or(f64::NAN),
+            j["update_ms"]["p95"].as_f64().unwrap_or(f64::NAN),
+            j["points_per_s"].as_f64().unwrap_or(f64::NAN)
+        )?;
+    }
+    crate::outln!("written to {}", a.out.display())?;
+    Ok(())
+}
+
+/// Maps the sequence and writes everything into `a.out`; returns the report.json object,
+/// the runs and the frame counts.
+pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -406,7 +428,7 @@ pub fn run(a: MapArgs) -> Result<()> {
     let (runs, counts) = map_sequence(
         &seq,
         &poses,
-        make_mappers(&a),
+        make_mappers(a),
         a.max_frames,
         gt.as_ref(),
         !a.no_median_filter,
@@ -499,7 +521,7 @@ pub fn run(a: MapArgs) -> Result<()> {
     );
     report.insert("drift_percent".into(), json!(a.drift));
     if a.mapper != MapperArg::Fankhauser {
-        let c = stack_config(&a);
+        let c = stack_config(a);
         report.insert(
             "stack_config".into(),
             json!({
@@ -519,19 +541,5 @@ pub fn run(a: MapArgs) -> Result<()> {
         serde_json::to_string_pretty(&Value::Object(report.clone()))?.as_bytes(),
     )?;
     rep.write(&a.out)?;
-    for r in &runs {
-        let j = run_json(r, &counts);
-        crate::outln!(
-            "{:<11} MSE {} m², coverage {}, {} cells, update {:.2} ms median ({:.2} p95), {:.2e} points/s",
-            r.name,
-            j["mse"].as_f64().map_or("-".into(), |v| format!("{v:.3e}")),
-            j["coverage"].as_f64().map_or("-".into(), |v| format!("{v:.3}")),
-            j["cells_observed"],
-            j["update_ms"]["median"].as_f64().unwrap_or(f64::NAN),
-            j["update_ms"]["p95"].as_f64().unwrap_or(f64::NAN),
-            j["points_per_s"].as_f64().unwrap_or(f64::NAN)
-        )?;
-    }
-    crate::outln!("written to {}", a.out.display())?;
-    Ok(())
+    Ok((Value::Object(report), runs, counts))
 }

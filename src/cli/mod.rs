@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch.
 
 mod bench;
+mod demo;
 mod eval;
 mod map;
 mod run;
@@ -35,6 +36,8 @@ enum Command {
     Map(map::MapArgs),
     /// Render a synthetic legged-robot RGB-D sequence with ground truth (TUM layout).
     Synth(synth::SynthArgs),
+    /// The whole pipeline on the embedded synthetic sequence: render, track, map, report.
+    Demo(demo::DemoArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -76,5 +79,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Synth(a) => synth::run(a),
         Command::Run(a) => run::run(a),
         Command::Map(a) => map::run(a),
+        Command::Demo(a) => demo::run(a),
     }
 }
