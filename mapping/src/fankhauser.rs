@@ -257,7 +257,7 @@ impl ElevationMapper for FankhauserMapper {
                 let mut used = 0;
                 // Points in input order within each cell, as the original applies them.
                 for p in binned.band(b) {
-                    let Some(c) = cells.get_mut(p.cell as usize - lo) else {
+                    let Some(c) = cells.get_mut((p.cell as usize).wrapping_sub(lo)) else {
                         continue;
                     };
                     let (z, vp) = (p.z_m, p.var_m2);

@@ -558,6 +558,11 @@ pub struct CellPoint {
     pub var_m2: f32,
 }
 
+/// Smallest height variance handed to a mapper (m²); smaller ones are raised to it.
+pub const VAR_MIN_M2: f32 = 1e-10;
+/// Largest height variance handed to a mapper (m²); larger ones are lowered to it.
+pub const VAR_MAX_M2: f32 = 1e10;
+
 /// Measurements are prepared in this many slices of the input (rows of a depth image), a
 /// number that does not depend on the thread count so that results never do.
 pub const SLICES: usize = 16;
@@ -632,7 +637,8 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
                     list.push(CellPoint {
                         cell: cell as u32,
                         z_m: p.z as f32,
-                        var_m2: p.var as f32,
+                        // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
+                        var_m2: (p.var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
                     });
                 } else {
                     rej.outside_window += 1;

@@ -702,7 +702,7 @@ impl ElevationMapper for StackMapper {
                 let (mut used, mut overflow) = (0usize, 0usize);
                 let mut touched: Vec<u32> = Vec::new();
                 for p in binned.band(b) {
-                    let k = p.cell as usize - lo;
+                    let k = (p.cell as usize).wrapping_sub(lo);
                     let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
                         continue;
                     };
@@ -719,7 +719,7 @@ impl ElevationMapper for StackMapper {
                 }
                 let mut targets = Vec::new();
                 for &ci in &touched {
-                    let k = ci as usize - lo;
+                    let k = (ci as usize).wrapping_sub(lo);
                     let (Some(c), Some(st), Some(acc)) =
                         (cells.get_mut(k), stacks.get_mut(k), accs.get(k))
                     else {
@@ -747,7 +747,7 @@ impl ElevationMapper for StackMapper {
                 }
                 // Vitality decays in columns not updated now, until they are established.
                 pending.retain(|&ci| {
-                    let Some(c) = cells.get_mut(ci as usize - lo) else {
+                    let Some(c) = cells.get_mut((ci as usize).wrapping_sub(lo)) else {
                         return false;
                     };
                     if !c.pending || c.established {
@@ -1061,6 +1061,40 @@ mod tests {
                 "{}: the map is unchanged",
                 m.name()
             );
+            // Absurd but positive variances are used (beside the floor patch), and the map
+            // stays finite.
+            let world = [Point3::new(1.5, -0.5, 0.2), Point3::new(1.5, 0.5, 0.2)];
+            let p: Vec<Point3<f64>> = world.iter().map(|q| pose.inverse() * q).collect();
+            let covs = [Matrix3::identity() * 1e-60, Matrix3::identity() * 1e300];
+            for k in 0..3 {
+                m.integrate(&SensorFrame {
+                    cloud: Cloud::Points {
+                        points: &p,
+                        covariances: &covs,
+                    },
+                    map_from_sensor: pose,
+                    time_s: 0.3 + 0.1 * f64::from(k),
+                });
+            }
+            let after = m.export();
+            let finite = |l: &MapLayers| {
+                l.elevation
+                    .as_slice()
+                    .iter()
+                    .filter(|v| v.is_finite())
+                    .count()
+            };
+            assert!(
+                after
+                    .elevation
+                    .as_slice()
+                    .iter()
+                    .chain(after.variance.as_slice())
+                    .all(|v| v.is_nan() || v.is_finite()),
+                "{}",
+                m.name()
+            );
+            assert_eq!(finite(&after), finite(&before) + 2, "{}", m.name());
         }
     }
 
