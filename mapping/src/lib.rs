@@ -3,7 +3,8 @@
 //! Elevation maps for walking robots, in a map frame whose z axis points up:
 //!
 //! * [`stack::StackMapper`]: paper 000's map (voxel stacks with Kalman filters, vitality
-//!   counter, visibility check; median fill on export).
+//!   counter, visibility check, see-through check, depth-edge filter; median filter on
+//!   export).
 //! * [`fankhauser::FankhauserMapper`]: the Fankhauser et al. (2014) update (ANYbotics'
 //!   elevation_mapping: per-cell Kalman fusion with Mahalanobis gating and its Kinect noise
 //!   model), the baseline, behind the same [`ElevationMapper`] trait.
@@ -12,7 +13,7 @@
 //! * [`stereo`]: paper 000's stereo uncertainty model (eqs. 5-9) and stereo artifact filter
 //!   (section 4.1).
 //! * [`metrics`]: MSE against ground truth, coverage, and the performance index (eq. 13).
-//! * [`post`]: the median filter that fills small holes.
+//! * [`post`]: the median filter that fills small holes and removes isolated cells.
 //!
 //! Mapping never depends on the SLAM crates: it takes poses and measurements, so it serves
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
