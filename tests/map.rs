@@ -6,20 +6,8 @@
 
 mod common;
 
-use common::{data, num, run};
+use common::{data, num, report, run, run_ok};
 use std::path::Path;
-
-fn run_ok(args: &[&str]) -> String {
-    let out = run(args);
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "stride {args:?} failed: {err}");
-    assert!(!err.contains("panicked"));
-    err
-}
-
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
-}
 
 fn map(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     let mut args = vec![

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{data, num, run};
+use common::{data, num, report, run, run_ok};
 use std::path::{Path, PathBuf};
 use stride_core::camera::PinholeCamera;
 use stride_datasets::camera_config::CameraConfig;
@@ -13,18 +13,6 @@ use stride_datasets::synth::motion::{Gait, MotionConfig};
 use stride_datasets::synth::{generate, Synth, SynthConfig};
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_eval::{ate, Align, AteOptions, Preset};
-
-fn run_ok(args: &[&str]) -> String {
-    let out = run(args);
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(out.status.success(), "stride {args:?} failed: {err}");
-    assert!(!err.contains("panicked"));
-    err
-}
-
-fn report(dir: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
-}
 
 #[test]
 fn teddy_every_frame_tracked_and_ate_within_two_centimetres() {

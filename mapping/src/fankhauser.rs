@@ -12,8 +12,7 @@
 //! the original applies them in cloud order.
 
 use crate::input::{
-    pose_is_finite, prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache,
-    SensorFrame,
+    prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
 };
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
@@ -156,7 +155,6 @@ pub struct FankhauserMapper {
     binned: Binned,
     frame_no: u32,
     t0: Option<f64>,
-    centered: bool,
 }
 
 impl FankhauserMapper {
@@ -171,38 +169,22 @@ impl FankhauserMapper {
             binned: Binned::default(),
             frame_no: 0,
             t0: None,
-            centered: false,
         }
     }
 
+    /// Keeps the window ahead of the sensor; evicted cells go to the archive.
     fn recenter(&mut self, frame: &SensorFrame<'_>) {
-        let t = &frame.map_from_sensor;
-        let fwd = t.rotation * Vector3::z();
-        let horiz = nalgebra::Vector2::new(fwd.x, fwd.y);
-        let dir = if horiz.norm() > 1e-6 {
-            horiz.normalize()
-        } else {
-            nalgebra::Vector2::zeros()
-        };
-        let want =
-            nalgebra::Vector2::new(t.translation.x, t.translation.y) + dir * self.cfg.lookahead_m;
-        let n = self.window.size() as i64;
-        let (r0, c0) = self.window.origin();
-        let centre = self.window.cell_center((r0 + n / 2, c0 + n / 2));
-        if self.centered
-            && (nalgebra::Vector2::new(centre.0, centre.1) - want).norm()
-                <= self.cfg.recenter_threshold_m
-        {
-            return;
-        }
-        let (wr, wc) = self.window.world_cell(want.x, want.y);
         let archive = &mut self.archive;
-        self.window.move_to((wr - n / 2, wc - n / 2), |cell, c| {
-            if c.valid {
-                archive.insert(cell, *c);
-            }
-        });
-        self.centered = true;
+        self.window.follow(
+            &frame.map_from_sensor,
+            self.cfg.lookahead_m,
+            self.cfg.recenter_threshold_m,
+            |cell, c| {
+                if c.valid {
+                    archive.insert(cell, *c);
+                }
+            },
+        );
     }
 }
 
@@ -215,21 +197,8 @@ impl ElevationMapper for FankhauserMapper {
         let start = Instant::now();
         self.frame_no += 1;
         let cfg = self.cfg.clone();
-        if !pose_is_finite(&frame.map_from_sensor) {
-            let rej = prepare_binned(
-                frame,
-                &cfg.sensor,
-                &mut self.rays,
-                |_, _| None,
-                1,
-                None,
-                &mut self.binned,
-            );
-            return UpdateStats {
-                rejected: rej,
-                update_s: start.elapsed().as_secs_f64(),
-                ..Default::default()
-            };
+        if !frame.pose_is_finite() {
+            return UpdateStats::bad_pose(frame, start);
         }
         self.recenter(frame);
         let t = (frame.time_s - *self.t0.get_or_insert(frame.time_s)) as f32;

@@ -38,6 +38,27 @@ pub struct SensorFrame<'a> {
     pub time_s: f64,
 }
 
+impl SensorFrame<'_> {
+    /// Number of measurements (pixels of a depth image, or points).
+    pub fn len(&self) -> usize {
+        match self.cloud {
+            Cloud::Depth { depth_m, .. } => depth_m.as_slice().len(),
+            Cloud::Points { points, .. } => points.len(),
+        }
+    }
+
+    /// True when the frame carries no measurement.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// True when the pose has only finite numbers (a frame with any other pose is dropped
+    /// whole, its measurements counted as `bad_pose`).
+    pub fn pose_is_finite(&self) -> bool {
+        pose_is_finite(&self.map_from_sensor)
+    }
+}
+
 /// How a mapper turns a measurement into a height variance in the map frame (m²).
 pub trait HeightModel: Sync {
     /// Height variance (m²) of a depth pixel of `camera`; `r3` is the map's z axis
@@ -177,16 +198,6 @@ impl Rejections {
         self.outside_window += o.outside_window;
         self.bad_pose += o.bad_pose;
         self.depth_edge += o.depth_edge;
-    }
-
-    /// Points dropped for any reason other than a missing return.
-    pub fn dropped(&self) -> usize {
-        self.non_finite
-            + self.out_of_range
-            + self.bad_variance
-            + self.outside_window
-            + self.bad_pose
-            + self.depth_edge
     }
 }
 
@@ -582,16 +593,6 @@ impl Binned {
             .iter()
             .flat_map(move |slice| slice.get(b).into_iter().flatten())
     }
-
-    /// Number of measurements in all bands.
-    pub fn len(&self) -> usize {
-        self.lists.iter().flatten().map(Vec::len).sum()
-    }
-
-    /// True when no measurement landed in the window.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
 }
 
 /// Transforms a frame's measurements into map-frame heights with height variances and
@@ -617,13 +618,9 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
         slice.resize_with(bands, Vec::new);
         slice.iter_mut().for_each(Vec::clear);
     }
-    let n_total = match frame.cloud {
-        Cloud::Depth { depth_m, .. } => depth_m.as_slice().len(),
-        Cloud::Points { points, .. } => points.len(),
-    };
-    if !pose_is_finite(&t) {
+    if !frame.pose_is_finite() {
         return Rejections {
-            bad_pose: n_total,
+            bad_pose: frame.len(),
             ..Default::default()
         };
     }
@@ -709,13 +706,9 @@ pub fn to_map_points<M: HeightModel + ?Sized>(
 ) -> (Vec<Option<MapPoint>>, Rejections) {
     let mut rej = Rejections::default();
     let t = frame.map_from_sensor;
-    let n_total = match frame.cloud {
-        Cloud::Depth { depth_m, .. } => depth_m.as_slice().len(),
-        Cloud::Points { points, .. } => points.len(),
-    };
-    if !pose_is_finite(&t) {
-        rej.bad_pose = n_total;
-        return (vec![None; n_total], rej);
+    if !frame.pose_is_finite() {
+        rej.bad_pose = frame.len();
+        return (vec![None; frame.len()], rej);
     }
     let place = Placement::new(&t, model.range_m());
     let results: Vec<Result<MapPoint, Reason>> = match frame.cloud {

@@ -48,6 +48,21 @@ pub struct UpdateStats {
     pub checks_s: f64,
 }
 
+impl UpdateStats {
+    /// The stats of a frame dropped whole because its pose is not finite (nothing in the
+    /// map changes), `start` being when its update began.
+    pub fn bad_pose(frame: &SensorFrame<'_>, start: std::time::Instant) -> Self {
+        Self {
+            rejected: Rejections {
+                bad_pose: frame.len(),
+                ..Default::default()
+            },
+            update_s: start.elapsed().as_secs_f64(),
+            ..Default::default()
+        }
+    }
+}
+
 /// An elevation mapper: integrates sensor frames, exports its layers.
 pub trait ElevationMapper {
     /// A short name for reports (`stack`, `fankhauser`).

@@ -391,7 +391,6 @@ pub struct StackMapper {
     /// and distance).
     los_table: Vec<f32>,
     frame_no: u32,
-    centered: bool,
 }
 
 /// Bands of storage rows that the update runs over in parallel: a fixed number, so that
@@ -416,7 +415,6 @@ impl StackMapper {
             band_cells,
             los_table: Vec::new(),
             frame_no: 0,
-            centered: false,
         }
     }
 
@@ -425,48 +423,35 @@ impl StackMapper {
         &self.cfg
     }
 
+    /// Keeps the window ahead of the sensor; evicted established columns go to the archive.
     fn recenter(&mut self, frame: &SensorFrame<'_>) {
-        let t = &frame.map_from_sensor;
-        let fwd = t.rotation * nalgebra::Vector3::z();
-        let horiz = nalgebra::Vector2::new(fwd.x, fwd.y);
-        let dir = if horiz.norm() > 1e-6 {
-            horiz.normalize()
-        } else {
-            nalgebra::Vector2::zeros()
-        };
-        let want =
-            nalgebra::Vector2::new(t.translation.x, t.translation.y) + dir * self.cfg.lookahead_m;
-        let n = self.window.size() as i64;
-        let (r0, c0) = self.window.origin();
-        let centre = self.window.cell_center((r0 + n / 2, c0 + n / 2));
-        if self.centered
-            && (nalgebra::Vector2::new(centre.0, centre.1) - want).norm()
-                <= self.cfg.recenter_threshold_m
-        {
-            return;
-        }
-        let (wr, wc) = self.window.world_cell(want.x, want.y);
         let archive = &mut self.archive;
-        self.window.move_to((wr - n / 2, wc - n / 2), |cell, c| {
-            if c.mapped() {
-                archive.insert(
-                    cell,
-                    Archived {
-                        h: c.h,
-                        var: c.var,
-                        vitality: c.vitality,
-                        updates: c.updates,
-                    },
-                );
+        let moved = self.window.follow(
+            &frame.map_from_sensor,
+            self.cfg.lookahead_m,
+            self.cfg.recenter_threshold_m,
+            |cell, c| {
+                if c.mapped() {
+                    archive.insert(
+                        cell,
+                        Archived {
+                            h: c.h,
+                            var: c.var,
+                            vitality: c.vitality,
+                            updates: c.updates,
+                        },
+                    );
+                }
+            },
+        );
+        if moved {
+            // Evicted columns were reset: drop them from the decay lists before their storage
+            // is reused (otherwise a new column there would decay twice per frame).
+            let cells = self.window.cells();
+            for list in &mut self.pending {
+                list.retain(|&ci| cells.get(ci as usize).is_some_and(|c| c.pending));
             }
-        });
-        // Evicted columns were reset: drop them from the decay lists before their storage is
-        // reused (otherwise a new column there would decay twice per frame).
-        let cells = self.window.cells();
-        for list in &mut self.pending {
-            list.retain(|&ci| cells.get(ci as usize).is_some_and(|c| c.pending));
         }
-        self.centered = true;
     }
 
     /// The checks after the update, in one pass over the window's mapped columns:
@@ -634,21 +619,8 @@ impl ElevationMapper for StackMapper {
         let start = Instant::now();
         self.frame_no += 1;
         let cfg = self.cfg.clone();
-        if !crate::input::pose_is_finite(&frame.map_from_sensor) {
-            let rej = prepare_binned(
-                frame,
-                &cfg.sensor,
-                &mut self.rays,
-                |_, _| None,
-                1,
-                None,
-                &mut self.binned,
-            );
-            return UpdateStats {
-                rejected: rej,
-                update_s: start.elapsed().as_secs_f64(),
-                ..Default::default()
-            };
+        if !frame.pose_is_finite() {
+            return UpdateStats::bad_pose(frame, start);
         }
         self.recenter(frame);
         let band_cells = self.band_cells;

@@ -21,6 +21,8 @@ pub struct Window<T> {
     /// World cell coordinates of the window's lowest row and column.
     origin: (i64, i64),
     cells: Vec<T>,
+    /// Whether [`Window::follow`] has placed the window yet.
+    placed: bool,
 }
 
 impl<T: Clone + Default> Window<T> {
@@ -32,6 +34,7 @@ impl<T: Clone + Default> Window<T> {
             resolution,
             origin,
             cells: vec![T::default(); size.max(1) * size.max(1)],
+            placed: false,
         }
     }
 
@@ -174,7 +177,6 @@ impl<T: Clone + Default> Window<T> {
             return;
         }
         let n = self.size as i64;
-        let old = self.origin;
         for i in 0..self.cells.len() {
             let cell = self.cell_of_index(i);
             let (r, c) = (cell.0 - origin.0, cell.1 - origin.1);
@@ -186,8 +188,40 @@ impl<T: Clone + Default> Window<T> {
                 }
             }
         }
-        let _ = old;
         self.origin = origin;
+    }
+
+    /// Keeps the window ahead of a sensor: its centre belongs `lookahead_m` (m) ahead of
+    /// `map_from_sensor` along the sensor's horizontal viewing direction (its z axis
+    /// projected on the map's x-y plane). The window moves there on the first call and
+    /// whenever that point is more than `threshold_m` (m) from its centre; the cells that
+    /// leave go to `evict` ([`Window::move_to`]). Returns whether it moved.
+    pub fn follow(
+        &mut self,
+        map_from_sensor: &nalgebra::Isometry3<f64>,
+        lookahead_m: f64,
+        threshold_m: f64,
+        evict: impl FnMut((i64, i64), &T),
+    ) -> bool {
+        let fwd = map_from_sensor.rotation * nalgebra::Vector3::z();
+        let horiz = nalgebra::Vector2::new(fwd.x, fwd.y);
+        let dir = if horiz.norm() > 1e-6 {
+            horiz.normalize()
+        } else {
+            nalgebra::Vector2::zeros()
+        };
+        let t = map_from_sensor.translation.vector;
+        let want = nalgebra::Vector2::new(t.x, t.y) + dir * lookahead_m;
+        let n = self.size as i64;
+        let (r0, c0) = self.origin;
+        let (cx, cy) = self.cell_center((r0 + n / 2, c0 + n / 2));
+        if self.placed && (nalgebra::Vector2::new(cx, cy) - want).norm() <= threshold_m {
+            return false;
+        }
+        let (wr, wc) = self.world_cell(want.x, want.y);
+        self.move_to((wr - n / 2, wc - n / 2), evict);
+        self.placed = true;
+        true
     }
 }
 

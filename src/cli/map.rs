@@ -360,8 +360,7 @@ pub fn write_layers(dir: &Path, layers: &MapLayers) -> Result<()> {
 pub const MAP_FRAME_NOTE: &str = "map frame = the pose file's world frame (z up, metres); each depth pixel is back-projected in the camera frame (x right, y down, z forward) and placed with world_from_camera interpolated at the depth image's time";
 
 pub fn run(a: MapArgs) -> Result<()> {
-    let (report, runs, counts) = execute(&a)?;
-    let _ = report;
+    let (_, runs, counts) = execute(&a)?;
     for r in &runs {
         let j = run_json(r, &counts);
         crate::outln!(

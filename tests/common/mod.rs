@@ -34,6 +34,22 @@ pub fn run(args: &[&str]) -> Output {
     stride().args(args).output().expect("stride runs")
 }
 
+/// Runs `stride` with arguments, fails the test unless it succeeded without a panic, and
+/// returns its stderr.
+pub fn run_ok(args: &[&str]) -> String {
+    let out = run(args);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "stride {args:?} failed: {err}");
+    assert!(!err.contains("panicked"));
+    err
+}
+
+/// The report.json a command wrote into `dir`.
+pub fn report(dir: &std::path::Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("report.json")).expect("report.json is written");
+    serde_json::from_str(&text).expect("report.json is JSON")
+}
+
 /// Runs `stride ... --json` and parses the single JSON object it prints.
 pub fn run_json(args: &[&str]) -> serde_json::Value {
     let out = run(args);
