@@ -1,3 +1,9 @@
-//! stride-backend: feature map, keyframes, bundle adjustment (faer sparse), loop closure.
+//! # stride-backend
 //!
-//! Empty for now: the back end is built in its own issue.
+//! The back end of stride's SLAM, after PUT SLAM (paper 004, section 3.1).
+
+pub mod ba;
+pub mod error;
+pub mod se3;
+
+pub use error::BackendError;

@@ -1,0 +1,175 @@
+//! Fixed indexing of a [`Problem`] for the solver: free cameras, point edges grouped by
+//! point, observations grouped by camera, the block pattern of the reduced system; and the
+//! estimate ([`Vars`]) that the solver steps.
+
+use super::problem::Problem;
+use super::reduced::BlockPattern;
+use crate::se3::{is_finite, point_is_finite, retract};
+use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+
+/// The estimate, apart from the edges: every pose (`world_from_camera`) and point
+/// (`p_world`).
+#[derive(Debug, Clone)]
+pub(crate) struct Vars {
+    pub(crate) poses: Vec<Isometry3<f64>>,
+    pub(crate) points: Vec<Point3<f64>>,
+}
+
+impl Vars {
+    pub(crate) fn of(p: &Problem) -> Self {
+        Self {
+            poses: p.poses.iter().map(|v| v.world_from_camera).collect(),
+            points: p.points.iter().map(|v| v.p_world).collect(),
+        }
+    }
+
+    /// The estimate stepped by `(dc, dp)`, or `None` if any value would not be finite.
+    pub(crate) fn stepped(
+        &self,
+        layout: &Layout,
+        dc: &[Vector6<f64>],
+        dp: &[Vector3<f64>],
+    ) -> Option<Self> {
+        let mut out = self.clone();
+        for (i, pose) in out.poses.iter_mut().enumerate() {
+            if let Some(c) = layout.cam(i) {
+                let next = retract(pose, dc.get(c as usize)?);
+                if !is_finite(&next) {
+                    return None;
+                }
+                *pose = next;
+            }
+        }
+        for (pt, d) in out.points.iter_mut().zip(dp) {
+            let next: Point3<f64> = *pt + d;
+            if !point_is_finite(&next) {
+                return None;
+            }
+            *pt = next;
+        }
+        Some(out)
+    }
+}
+
+/// Fixed indexing of a problem: free cameras, edges grouped by point, observations by camera.
+pub(crate) struct Layout {
+    pub(crate) cam_of_pose: Vec<Option<u32>>,
+    /// Point-edge indices ordered by point.
+    pub(crate) edge_order: Vec<usize>,
+    /// For each position in `edge_order`, its point.
+    pub(crate) point_of_pos: Vec<usize>,
+    /// For each point, its range in `edge_order`.
+    pub(crate) point_ranges: Vec<std::ops::Range<usize>>,
+    /// For each free camera, positions in `edge_order` of its edges, and their points.
+    pub(crate) obs_of_cam: Vec<Vec<(usize, usize)>>,
+    /// For each free camera, the pose edges touching it.
+    pub(crate) pose_edges_of_cam: Vec<Vec<usize>>,
+}
+
+impl Layout {
+    pub(crate) fn new(p: &Problem) -> Self {
+        let mut cam_of_pose = Vec::with_capacity(p.poses.len());
+        let mut n_cams = 0u32;
+        for v in &p.poses {
+            cam_of_pose.push((!v.fixed).then(|| {
+                n_cams += 1;
+                n_cams - 1
+            }));
+        }
+        let mut edge_order: Vec<usize> = (0..p.point_edges.len())
+            .filter(|&i| {
+                p.point_edges
+                    .get(i)
+                    .is_some_and(|e| e.point < p.points.len() && e.pose < p.poses.len())
+            })
+            .collect();
+        edge_order.sort_by_key(|&i| p.point_edges.get(i).map(|e| (e.point, e.pose)));
+        let mut point_ranges = vec![0..0; p.points.len()];
+        let mut start = 0;
+        while start < edge_order.len() {
+            let pt = edge_order
+                .get(start)
+                .and_then(|&i| p.point_edges.get(i))
+                .map_or(0, |e| e.point);
+            let mut end = start;
+            while end < edge_order.len()
+                && edge_order
+                    .get(end)
+                    .and_then(|&i| p.point_edges.get(i))
+                    .is_some_and(|e| e.point == pt)
+            {
+                end += 1;
+            }
+            if let Some(r) = point_ranges.get_mut(pt) {
+                *r = start..end;
+            }
+            start = end;
+        }
+        let point_of_pos = edge_order
+            .iter()
+            .map(|&i| p.point_edges.get(i).map_or(0, |e| e.point))
+            .collect();
+        let mut obs_of_cam = vec![Vec::new(); n_cams as usize];
+        for (pos, &i) in edge_order.iter().enumerate() {
+            if let Some(e) = p.point_edges.get(i) {
+                if let Some(Some(c)) = cam_of_pose.get(e.pose) {
+                    if let Some(list) = obs_of_cam.get_mut(*c as usize) {
+                        list.push((pos, e.point));
+                    }
+                }
+            }
+        }
+        let mut pose_edges_of_cam = vec![Vec::new(); n_cams as usize];
+        for (i, e) in p.pose_edges.iter().enumerate() {
+            for end in [e.from, e.to] {
+                if let Some(Some(c)) = cam_of_pose.get(end) {
+                    if let Some(list) = pose_edges_of_cam.get_mut(*c as usize) {
+                        if list.last() != Some(&i) {
+                            list.push(i);
+                        }
+                    }
+                }
+            }
+        }
+        Self {
+            cam_of_pose,
+            edge_order,
+            point_of_pos,
+            point_ranges,
+            obs_of_cam,
+            pose_edges_of_cam,
+        }
+    }
+
+    /// The point-edge indices of a point's range.
+    pub(crate) fn edges(&self, r: &std::ops::Range<usize>) -> &[usize] {
+        self.edge_order.get(r.clone()).unwrap_or(&[])
+    }
+
+    pub(crate) fn cam(&self, pose: usize) -> Option<u32> {
+        self.cam_of_pose.get(pose).copied().flatten()
+    }
+
+    pub(crate) fn pattern(&self, p: &Problem) -> BlockPattern {
+        let mut pairs = Vec::new();
+        for r in &self.point_ranges {
+            let cams: Vec<usize> = self
+                .edges(r)
+                .iter()
+                .filter_map(|&i| p.point_edges.get(i).and_then(|e| self.cam(e.pose)))
+                .map(|c| c as usize)
+                .collect();
+            for (k, &a) in cams.iter().enumerate() {
+                for &b in cams.iter().skip(k + 1) {
+                    pairs.push((a, b));
+                }
+            }
+        }
+        for e in &p.pose_edges {
+            if let (Some(a), Some(b)) = (self.cam(e.from), self.cam(e.to)) {
+                pairs.push((a as usize, b as usize));
+            }
+        }
+        BlockPattern::new(self.obs_of_cam.len(), pairs)
+    }
+}
