@@ -19,7 +19,8 @@ pub enum InlierTest {
     },
 }
 
-/// Parameters of [`crate::VisualOdometry`].
+/// Parameters of [`crate::VisualOdometry`]. The defaults are those of the full SLAM (with a
+/// back end); [`VoConfig::odometry_only`] those of the odometry alone.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VoConfig {
     /// Keypoints to keep tracked (about 500-1000).
@@ -34,8 +35,12 @@ pub struct VoConfig {
     pub min_fast_threshold: i32,
     /// Smallest distance between two keypoints (px).
     pub min_feature_distance_px: f32,
-    /// Start a new keyframe (and detect new keypoints) when fewer than this fraction of the
-    /// keyframe's tracks are still tracked.
+    /// Start a keyframe (and detect new keypoints in the empty grid cells) when fewer than
+    /// this fraction of the last keyframe's tracks are still tracked. With a back end,
+    /// frequent keyframes keep the grid full and give bundle adjustment more points and
+    /// measurements: on teddy_200 (five seeds each) its ATE is 4.8 mm at 0.8, 6.5 mm at 0.7
+    /// and 7.3 mm at 0.6. The odometry alone drifts more with more new points (14.0 mm at
+    /// 0.8 against 11.5 mm at 0.6), so [`VoConfig::odometry_only`] keeps 0.6.
     pub redetect_fraction: f64,
     /// Lucas-Kanade window side (px).
     pub klt_window: i32,
@@ -97,6 +102,17 @@ pub struct VoConfig {
     pub seed: u64,
 }
 
+impl VoConfig {
+    /// The defaults for the odometry running alone, without a back end: keyframes (and new
+    /// points) less often, which drifts less (see [`VoConfig::redetect_fraction`]).
+    pub fn odometry_only() -> Self {
+        Self {
+            redetect_fraction: 0.6,
+            ..Self::default()
+        }
+    }
+}
+
 impl Default for VoConfig {
     fn default() -> Self {
         Self {
@@ -106,7 +122,7 @@ impl Default for VoConfig {
             fast_threshold: 20,
             min_fast_threshold: 7,
             min_feature_distance_px: 8.0,
-            redetect_fraction: 0.6,
+            redetect_fraction: 0.8,
             klt_window: 13,
             klt_levels: 3,
             klt_iterations: 20,

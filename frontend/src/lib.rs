@@ -13,14 +13,19 @@
 pub mod config;
 pub mod error;
 pub mod features;
+pub mod keyframe;
 pub mod klt;
 pub mod motion;
 pub mod points;
+pub mod result;
 pub mod vo;
 
 pub use config::{InlierTest, VoConfig};
 pub use error::FrontendError;
-pub use vo::{FrameResult, StageTimes, TrackingStatus, VisualOdometry};
+pub use result::{
+    FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, StageTimes, TrackingStatus,
+};
+pub use vo::VisualOdometry;
 
 /// Sets the number of threads OpenCV's own pool uses (its parallel Lucas-Kanade and FAST).
 /// OpenCV runs beside rayon, so choose it on purpose; results do not depend on it.

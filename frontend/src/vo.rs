@@ -23,148 +23,49 @@
 
 use crate::config::VoConfig;
 use crate::error::FrontendError;
-use crate::features::{Detector, OrbDescriptor};
+use crate::features::Detector;
+use crate::keyframe::Track;
 use crate::klt::{track, Pyramid};
-use crate::motion::{estimate, is_finite, Correspondence};
+use crate::motion::{is_finite, polish, ransac, Correspondence, MotionEstimate, MotionParams};
 use crate::points::{measure, Measurement};
-use nalgebra::{Isometry3, Matrix6, Point2, Translation3, UnitQuaternion};
+use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
+use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
 use opencv::core::Point2f;
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::rng::SplitMix64;
 
-/// How a frame's pose was obtained.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum TrackingStatus {
-    /// The first frame: it defines the world frame.
-    Initialized,
-    /// Estimated from tracked 3-D points.
-    Tracked,
-    /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
-    Lost,
-}
-
-impl TrackingStatus {
-    /// A short lowercase name for reports.
-    pub fn as_str(&self) -> &'static str {
-        match self {
-            TrackingStatus::Initialized => "initialized",
-            TrackingStatus::Tracked => "tracked",
-            TrackingStatus::Lost => "lost",
-        }
-    }
-}
-
-/// Time spent in each stage of one frame (s).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct StageTimes {
-    /// Corner detection and ORB description (keyframes only).
-    pub detect_s: f64,
-    /// Grey conversion, pyramid, Lucas-Kanade both ways, 3-D measurement.
-    pub track_s: f64,
-    /// RANSAC.
-    pub ransac_s: f64,
-    /// Gauss-Newton refinement.
-    pub refine_s: f64,
-    /// The whole frame.
-    pub total_s: f64,
-}
-
-/// A keypoint of a keyframe, for a back end's map.
-#[derive(Debug, Clone, PartialEq)]
-pub struct KeyframeFeature {
-    /// Track identifier (stable while the keypoint is tracked).
-    pub id: u64,
-    /// Pixel position (distorted image coordinates).
-    pub px: Point2<f32>,
-    /// 3-D point and covariance in the keyframe's camera frame, when depth was valid.
-    pub point: Option<Measurement>,
-    /// ORB descriptor, when computed and the point is not too close to the border.
-    pub descriptor: Option<OrbDescriptor>,
-}
-
-/// What the odometry says about one frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FrameResult {
-    /// Frame index.
-    pub index: usize,
-    /// Frame time (s).
-    pub t_s: f64,
-    /// `world_from_camera`; the world frame is the first frame's camera frame.
-    pub world_from_camera: Isometry3<f64>,
-    /// How the pose was obtained.
-    pub status: TrackingStatus,
-    /// Whether this frame became a keyframe.
-    pub keyframe: bool,
-    /// Keypoints tracked into this frame.
-    pub tracked: usize,
-    /// Of them, with a valid 3-D point in this frame and in the keyframe.
-    pub correspondences: usize,
-    /// RANSAC inliers after refinement.
-    pub inliers: usize,
-    /// RANSAC iterations.
-    pub ransac_iterations: usize,
-    /// Information matrix of the keyframe-relative pose (zero when not estimated).
-    pub information: Matrix6<f64>,
-    /// Stage timings.
-    pub timing: StageTimes,
-    /// The keyframe's features, when this frame is a keyframe.
-    pub keyframe_features: Option<Vec<KeyframeFeature>>,
-}
-
-/// A track's point in the world frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct MapPoint {
-    /// Position and covariance in the world frame.
-    world: Measurement,
-    /// Observations fused so far.
-    observations: u32,
-}
-
-#[derive(Debug, Clone)]
-struct Track {
-    id: u64,
-    px: Point2f,
-    point: Option<MapPoint>,
-    /// Keyframe where the track was detected, and its position there.
-    origin_kf: u64,
-    origin_px: Point2f,
-}
-
 /// One attempt at the pose: the tracks used, their pairs and the estimate.
 struct Attempt {
     alive: Vec<(Track, Option<Measurement>)>,
     pairs: Vec<(usize, Correspondence)>,
     corrs: Vec<Correspondence>,
-    estimate: Option<crate::motion::MotionEstimate>,
+    estimate: Option<MotionEstimate>,
 }
-
-/// Observations fused into a map point at most; later ones only serve tracking (keeps the
-/// point's covariance from collapsing on correlated errors).
-const MAX_FUSED_OBSERVATIONS: u32 = 20;
-/// Observations are fused with their covariance inflated by this factor, for the error of
-/// the pose they are placed with.
-const OBSERVATION_INFLATION: f64 = 2.0;
 
 /// The visual odometry. Feed it frames in time order with [`VisualOdometry::process`].
 pub struct VisualOdometry {
-    config: VoConfig,
-    camera: PinholeCamera,
-    detector: Detector,
+    pub(crate) config: VoConfig,
+    pub(crate) camera: PinholeCamera,
+    pub(crate) detector: Detector,
     prev: Option<std::rc::Rc<Pyramid>>,
     prev_t: f64,
-    tracks: Vec<Track>,
-    world_from_kf: Isometry3<f64>,
+    pub(crate) tracks: Vec<Track>,
+    /// `world_from_camera` of the current keyframe.
+    pub(crate) world_from_kf: Isometry3<f64>,
+    /// `world_from_camera` of the previous frame.
     world_from_prev: Isometry3<f64>,
-    /// Last motion `prev_from_cur` over `dt` seconds.
-    velocity: Option<(Isometry3<f64>, f64)>,
+    /// The last frame-to-frame motion `prev_from_cur` and the time it took (s).
+    last_motion: Option<(Isometry3<f64>, f64)>,
     /// Tracks when the current keyframe started.
-    kf_tracks: usize,
+    pub(crate) kf_tracks: usize,
+
     /// Pyramids of the keyframes that live tracks were detected in, by keyframe number.
-    kf_pyramids: Vec<(u64, std::rc::Rc<Pyramid>)>,
-    kf_count: u64,
-    next_id: u64,
+    pub(crate) kf_pyramids: Vec<(u64, std::rc::Rc<Pyramid>)>,
+    /// Keyframes made so far (the next keyframe's identifier).
+    pub(crate) kf_count: u64,
+    pub(crate) next_id: u64,
     rng: SplitMix64,
 }
 
@@ -199,8 +100,9 @@ impl VisualOdometry {
             tracks: Vec::new(),
             world_from_kf: Isometry3::identity(),
             world_from_prev: Isometry3::identity(),
-            velocity: None,
+            last_motion: None,
             kf_tracks: 0,
+
             kf_pyramids: Vec::new(),
             kf_count: 0,
             next_id: 0,
@@ -213,12 +115,20 @@ impl VisualOdometry {
     }
 
     fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
-        match self.velocity {
+        match self.last_motion {
             Some((m, dt)) if dt > 0.0 => {
                 scale_motion(&m, ((t_s - self.prev_t) / dt).clamp(0.0, 5.0))
             }
             _ => Isometry3::identity(),
         }
+    }
+
+    /// The current keyframe's identifier and `world_from_camera` (none before the first
+    /// frame).
+    pub fn current_keyframe(&self) -> Option<(u64, Isometry3<f64>)> {
+        self.kf_count
+            .checked_sub(1)
+            .map(|id| (id, self.world_from_kf))
     }
 
     /// The pose predicted for time `t_s` by the constant-velocity model (for frames that
@@ -248,11 +158,17 @@ impl VisualOdometry {
 
         let Some(prev) = self.prev.take() else {
             // First frame: it defines the world.
-            self.world_from_kf = Isometry3::identity();
             self.world_from_prev = Isometry3::identity();
             timing.track_s = start.elapsed().as_secs_f64();
             let t = Instant::now();
-            let features = self.start_keyframe(frame, &pyr, &gray_img, &Isometry3::identity())?;
+            let info = self.start_keyframe(
+                frame,
+                &pyr,
+                &gray_img,
+                &Isometry3::identity(),
+                Vec::new(),
+                None,
+            )?;
             timing.detect_s = t.elapsed().as_secs_f64();
             self.prev = Some(pyr);
             self.prev_t = frame.t_s;
@@ -261,6 +177,8 @@ impl VisualOdometry {
                 index: frame.index,
                 t_s: frame.t_s,
                 world_from_camera: Isometry3::identity(),
+                keyframe_id: info.id,
+                keyframe_from_camera: Isometry3::identity(),
                 status: TrackingStatus::Initialized,
                 keyframe: true,
                 tracked: 0,
@@ -269,7 +187,7 @@ impl VisualOdometry {
                 ransac_iterations: 0,
                 information: Matrix6::zeros(),
                 timing,
-                keyframe_features: Some(features),
+                new_keyframe: Some(info),
             });
         };
 
@@ -368,22 +286,7 @@ impl VisualOdometry {
                 k += 1;
                 keep
             });
-            let rot = world_from_cur.rotation.to_rotation_matrix();
-            for (t, m) in alive.iter_mut() {
-                let Some(m) = m else { continue };
-                let obs = Measurement {
-                    p: world_from_cur * m.p,
-                    cov: rot.matrix() * m.cov * rot.matrix().transpose() * OBSERVATION_INFLATION,
-                };
-                t.point = Some(match t.point {
-                    None => MapPoint {
-                        world: obs,
-                        observations: 1,
-                    },
-                    Some(mp) if mp.observations >= MAX_FUSED_OBSERVATIONS => mp,
-                    Some(mp) => fuse(mp, obs),
-                });
-            }
+            Self::fuse_observations(&mut alive, &world_from_cur);
         }
 
         // 4. Keyframe?
@@ -395,20 +298,33 @@ impl VisualOdometry {
             || kf_from_cur.translation.vector.norm() > cfg.keyframe_max_translation_m
             || kf_from_cur.rotation.angle().to_degrees() > cfg.keyframe_max_rotation_deg;
         let correspondences = corrs.len();
-        let mut keyframe_features = None;
-        self.tracks = alive.iter().map(|(t, _)| t.clone()).collect();
+        let mut new_keyframe = None;
+        let (tracks, measured): (Vec<Track>, Vec<Option<Measurement>>) = alive.into_iter().unzip();
+        self.tracks = tracks;
         if need_kf {
-            self.world_from_kf = world_from_cur;
+            let odometry = OdometryLink {
+                previous_id: self.kf_count.saturating_sub(1),
+                previous_from_this: kf_from_cur,
+                information,
+            };
             let t_d = Instant::now();
-            keyframe_features =
-                Some(self.start_keyframe(frame, &pyr, &gray_img, &world_from_cur)?);
+            new_keyframe = Some(self.start_keyframe(
+                frame,
+                &pyr,
+                &gray_img,
+                &world_from_cur,
+                measured,
+                Some(odometry),
+            )?);
             timing.detect_s = t_d.elapsed().as_secs_f64();
         }
+        let keyframe_id = self.kf_count.saturating_sub(1);
+        let keyframe_from_camera = self.world_from_kf.inverse() * world_from_cur;
 
         // 5. Motion model.
         let dt = frame.t_s - self.prev_t;
         if status == TrackingStatus::Tracked && dt > 0.0 {
-            self.velocity = Some((self.world_from_prev.inverse() * world_from_cur, dt));
+            self.last_motion = Some((self.world_from_prev.inverse() * world_from_cur, dt));
         }
         self.world_from_prev = world_from_cur;
         self.prev = Some(pyr);
@@ -418,6 +334,8 @@ impl VisualOdometry {
             index: frame.index,
             t_s: frame.t_s,
             world_from_camera: world_from_cur,
+            keyframe_id,
+            keyframe_from_camera,
             status,
             keyframe: need_kf,
             tracked: tracked_count,
@@ -426,7 +344,7 @@ impl VisualOdometry {
             ransac_iterations: iterations,
             information,
             timing,
-            keyframe_features,
+            new_keyframe,
         })
     }
 
@@ -478,27 +396,13 @@ impl VisualOdometry {
         timing.track_s += t0.elapsed().as_secs_f64();
         let cfg = &self.config;
         let t_r = Instant::now();
-        let params = crate::motion::MotionParams {
-            refine_iterations: 0,
-            ..crate::motion::MotionParams::from_config(cfg)
-        };
-        let est = estimate(&corrs, &params, &mut self.rng);
+        let params = MotionParams::from_config(cfg);
+        let hypothesis = ransac(&corrs, &params, &mut self.rng);
         timing.ransac_s += t_r.elapsed().as_secs_f64();
         let t_f = Instant::now();
-        let est = est.map(|e| {
-            let (pose, info, chi2) = crate::motion::refine(
-                &corrs,
-                &e.inliers,
-                e.ref_from_cur,
-                cfg.refine_iterations,
-                cfg.model_noise_m,
-            );
-            crate::motion::MotionEstimate {
-                ref_from_cur: pose,
-                information: info,
-                mean_chi2: chi2,
-                ..e
-            }
+        let est = hypothesis.and_then(|(pose, inliers, iterations)| {
+            let e = polish(&corrs, pose, inliers, cfg.refine_iterations, &params)?;
+            Some(MotionEstimate { iterations, ..e })
         });
         timing.refine_s += t_f.elapsed().as_secs_f64();
         Ok(Attempt {
@@ -543,89 +447,5 @@ impl VisualOdometry {
         // grouping.
         out.sort_by_key(|t| t.id);
         Ok(out)
-    }
-
-    /// Makes the current frame a keyframe: new corners fill the grid (their points placed in
-    /// the world with the frame's pose), ORB describes every track.
-    fn start_keyframe(
-        &mut self,
-        frame: &RgbdFrame,
-        pyr: &std::rc::Rc<Pyramid>,
-        gray_img: &stride_core::image::GrayImage,
-        world_from_cur: &Isometry3<f64>,
-    ) -> Result<Vec<KeyframeFeature>, FrontendError> {
-        let mut tracks = std::mem::take(&mut self.tracks);
-        let existing: Vec<Point2f> = tracks.iter().map(|t| t.px).collect();
-        let corners = self.detector.detect(&pyr.gray, &existing, &self.config)?;
-        let rot = world_from_cur.rotation.to_rotation_matrix();
-        for c in corners {
-            let point =
-                measure(&frame.depth_m, &self.camera, c.px.x, c.px.y, &self.config).map(|m| {
-                    MapPoint {
-                        world: Measurement {
-                            p: world_from_cur * m.p,
-                            cov: rot.matrix() * m.cov * rot.matrix().transpose(),
-                        },
-                        observations: 1,
-                    }
-                });
-            tracks.push(Track {
-                id: self.next_id,
-                px: c.px,
-                point,
-                origin_kf: self.kf_count,
-                origin_px: c.px,
-            });
-            self.next_id += 1;
-        }
-        // Keep this keyframe's pyramid for re-alignment; forget those no track comes from.
-        self.kf_pyramids
-            .push((self.kf_count, std::rc::Rc::clone(pyr)));
-        self.kf_count += 1;
-        self.kf_pyramids
-            .retain(|(k, _)| tracks.iter().any(|t| t.origin_kf == *k));
-        let descriptors = if self.config.orb_descriptors {
-            let pts: Vec<Point2f> = tracks.iter().map(|t| t.px).collect();
-            self.detector.describe(&pyr.gray, gray_img, &pts)?
-        } else {
-            vec![None; tracks.len()]
-        };
-        let features = tracks
-            .iter()
-            .zip(descriptors)
-            .map(|(t, d)| KeyframeFeature {
-                id: t.id,
-                px: Point2::new(t.px.x, t.px.y),
-                point: t.point.map(|mp| Measurement {
-                    p: world_from_cur.inverse() * mp.world.p,
-                    cov: rot.matrix().transpose() * mp.world.cov * rot.matrix(),
-                }),
-                descriptor: d,
-            })
-            .collect();
-        self.kf_tracks = tracks.len();
-        self.tracks = tracks;
-        Ok(features)
-    }
-}
-
-/// Information-weighted fusion of an observation into a map point (a Kalman update with an
-/// identity model).
-fn fuse(mp: MapPoint, obs: Measurement) -> MapPoint {
-    let s = mp.world.cov + obs.cov;
-    let Some(s_inv) = s.try_inverse() else {
-        return mp;
-    };
-    let k = mp.world.cov * s_inv;
-    let p = mp.world.p + k * (obs.p - mp.world.p);
-    let cov = (nalgebra::Matrix3::identity() - k) * mp.world.cov;
-    let cov = (cov + cov.transpose()) * 0.5;
-    if p.coords.iter().all(|v| v.is_finite()) && cov.iter().all(|v| v.is_finite()) {
-        MapPoint {
-            world: Measurement { p, cov },
-            observations: mp.observations + 1,
-        }
-    } else {
-        mp
     }
 }

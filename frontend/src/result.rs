@@ -1,0 +1,119 @@
+//! What the odometry reports per frame: the pose, how it was obtained, timings, and for
+//! keyframes the features a back end builds its map from.
+
+use crate::features::OrbDescriptor;
+use crate::points::Measurement;
+use nalgebra::{Isometry3, Matrix6, Point2};
+
+/// How a frame's pose was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackingStatus {
+    /// The first frame: it defines the world frame.
+    Initialized,
+    /// Estimated from tracked 3-D points.
+    Tracked,
+    /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
+    Lost,
+}
+
+impl TrackingStatus {
+    /// A short lowercase name for reports.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            TrackingStatus::Initialized => "initialized",
+            TrackingStatus::Tracked => "tracked",
+            TrackingStatus::Lost => "lost",
+        }
+    }
+}
+
+/// Time spent in each stage of one frame (s).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StageTimes {
+    /// Corner detection and ORB description (keyframes only).
+    pub detect_s: f64,
+    /// Grey conversion, pyramid, Lucas-Kanade both ways, 3-D measurement.
+    pub track_s: f64,
+    /// RANSAC.
+    pub ransac_s: f64,
+    /// Gauss-Newton refinement.
+    pub refine_s: f64,
+    /// The whole frame.
+    pub total_s: f64,
+}
+
+/// A keypoint of a keyframe, for a back end's map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeFeature {
+    /// Track identifier: the same keypoint tracked by Lucas-Kanade keeps it from keyframe
+    /// to keyframe (a data association a back end can rely on); new keypoints get new ones.
+    pub track_id: u64,
+    /// Pixel position (distorted image coordinates).
+    pub px: Point2<f32>,
+    /// The keypoint measured with this keyframe's depth image: 3-D point and covariance in
+    /// the keyframe's camera frame (m, m^2). `None` without valid depth there.
+    pub measurement: Option<Measurement>,
+    /// ORB descriptor, when computed and the point is not too close to the border.
+    pub descriptor: Option<OrbDescriptor>,
+}
+
+/// The link of a keyframe to the one before it, as the odometry measured it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OdometryLink {
+    /// The previous keyframe's identifier.
+    pub previous_id: u64,
+    /// `previous_from_this`: this keyframe's pose in the previous keyframe's camera frame
+    /// (m).
+    pub previous_from_this: Isometry3<f64>,
+    /// Information matrix of this keyframe's pose estimate (left, world-frame
+    /// perturbation, translation then rotation); zero when the pose was predicted rather
+    /// than estimated ([`TrackingStatus::Lost`]).
+    pub information: Matrix6<f64>,
+}
+
+/// A new keyframe: what a back end needs to add it to its map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeInfo {
+    /// Keyframe identifier (0, 1, 2, ... in the order they are made).
+    pub id: u64,
+    /// Every tracked keypoint of the keyframe (old tracks and new detections).
+    pub features: Vec<KeyframeFeature>,
+    /// The link to the previous keyframe; `None` for the first.
+    pub odometry: Option<OdometryLink>,
+}
+
+/// What the odometry says about one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// Frame index.
+    pub index: usize,
+    /// Frame time (s).
+    pub t_s: f64,
+    /// `world_from_camera`; the world frame is the first frame's camera frame, moved by
+    /// the back end's corrections when there is one.
+    pub world_from_camera: Isometry3<f64>,
+    /// The keyframe this frame's pose is relative to (its own identifier for a keyframe).
+    pub keyframe_id: u64,
+    /// `keyframe_from_camera`: the frame's pose relative to that keyframe (identity for a
+    /// keyframe). A back end's later correction of the keyframe moves the frame with it.
+    pub keyframe_from_camera: Isometry3<f64>,
+    /// How the pose was obtained.
+    pub status: TrackingStatus,
+    /// Whether this frame became a keyframe.
+    pub keyframe: bool,
+    /// Keypoints tracked into this frame.
+    pub tracked: usize,
+    /// Of them, with a valid 3-D point in this frame and in the keyframe.
+    pub correspondences: usize,
+    /// RANSAC inliers after refinement.
+    pub inliers: usize,
+    /// RANSAC iterations.
+    pub ransac_iterations: usize,
+    /// Information matrix of the pose (left, world-frame perturbation, translation then
+    /// rotation; zero when not estimated).
+    pub information: Matrix6<f64>,
+    /// Stage timings.
+    pub timing: StageTimes,
+    /// The new keyframe, when this frame became one.
+    pub new_keyframe: Option<KeyframeInfo>,
+}
