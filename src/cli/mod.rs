@@ -5,6 +5,7 @@ mod demo;
 mod eval;
 mod map;
 mod run;
+mod run_report;
 mod synth;
 
 use anyhow::Result;

@@ -1,16 +1,16 @@
-//! `stride run`: the SLAM pipeline on a sequence (for now its visual odometry).
+//! `stride run`: the SLAM pipeline on a sequence: visual odometry, and beside it the back end
+//! (feature map and bundle adjustment, or a pose graph).
 
-use crate::pipeline::{median_p95, run_vo, RunOutput};
+use crate::pipeline::{median_p95, run_slam, FrameStatus, RunOutput, Schedule};
 use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use stride_backend::{BackendConfig, BackendMode};
 use stride_core::fsutil::write_atomic;
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
-use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
-use stride_eval::report::Report;
 use stride_eval::{ate, rpe, Align, AteOptions, AteResult, Preset, RpeOptions, RpeResult};
 use stride_frontend::VoConfig;
 
@@ -26,20 +26,73 @@ pub struct RunArgs {
     /// Output folder (created if missing).
     #[arg(long)]
     pub out: PathBuf,
-    /// Visual odometry only. The back end (feature map and bundle adjustment) is not built
-    /// yet, so every run is visual odometry for now; this flag makes that explicit.
+    /// The back end: `ba` (feature map and bundle adjustment of poses and points), `pose-graph`
+    /// (keyframe poses tied by relative motions, RGB-D SLAM v2 style) or `none` (the visual
+    /// odometry alone).
+    #[arg(long, value_enum, default_value = "ba")]
+    pub backend: BackendArg,
+    /// The visual odometry alone: the same as `--backend none`.
     #[arg(long)]
     pub vo_only: bool,
+    /// Apply the back end's corrections as soon as they are ready, never waiting for them.
+    /// Faster on a loaded machine, but results then depend on thread timing. By default a
+    /// correction is applied a fixed number of frames after its keyframe, so that reruns are
+    /// bit-identical.
+    #[arg(long)]
+    pub free_running: bool,
     /// Seed of RANSAC.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
-    /// Repeatable bit for bit: one OpenCV thread (results are identical with more threads;
-    /// this only pins the schedule).
-    #[arg(long)]
+    /// Repeatable bit for bit (the default schedule already is; this also pins OpenCV to one
+    /// thread, which does not change results). Conflicts with --free-running.
+    #[arg(long, conflicts_with = "free_running")]
     pub deterministic: bool,
+}
+
+/// The back end to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendArg {
+    /// Bundle adjustment of keyframe poses and 3-D points.
+    Ba,
+    /// A pose graph over keyframes.
+    PoseGraph,
+    /// None: the visual odometry alone.
+    None,
+}
+
+/// Frames between a keyframe and the application of its correction under the fixed
+/// schedule: time for the local optimization while the odometry goes on.
+pub const SYNC_LAG_FRAMES: usize = 3;
+
+impl RunArgs {
+    /// The back end's configuration and schedule, `None` for the odometry alone.
+    pub fn backend(&self) -> Option<(BackendConfig, Schedule)> {
+        let mode = match (self.vo_only, self.backend) {
+            (true, _) | (_, BackendArg::None) => return None,
+            (_, BackendArg::Ba) => BackendMode::BundleAdjustment,
+            (_, BackendArg::PoseGraph) => BackendMode::PoseGraph,
+        };
+        let schedule = if self.free_running {
+            Schedule::Free
+        } else {
+            Schedule::Fixed {
+                lag_frames: SYNC_LAG_FRAMES,
+            }
+        };
+        let c = BackendConfig {
+            mode,
+            ..BackendConfig::default()
+        };
+        Some((c, schedule))
+    }
+
+    /// The name of the back end for reports.
+    fn backend_name(&self) -> &'static str {
+        self.backend().map_or("none", |(c, _)| c.mode.as_str())
+    }
 }
 
 /// Everything a run measured.
@@ -51,7 +104,6 @@ pub struct RunSummary {
     /// RPE against ground truth, when there is ground truth.
     pub rpe: Option<RpeResult>,
     /// The per-frame records.
-    #[allow(dead_code)] // used by the demo pipeline
     pub output: RunOutput,
 }
 
@@ -60,9 +112,17 @@ pub fn run(a: RunArgs) -> Result<()> {
     let j = &summary.json;
     let f = |k: &str| j.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN);
     let mut line = format!(
-        "{} frames, {} tracked, {} lost, {} skipped; VO {:.1} frames/s (median {:.2} ms/frame, decoding excluded)",
-        j["frames"], j["frames_tracked"], j["frames_lost"], j["frames_skipped"], f("fps"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
+        "{} frames, {} tracked, {} lost, {} skipped; {} frames/s with the back end ({}), odometry median {:.2} ms/frame (decoding excluded)",
+        j["frames"], j["frames_tracked"], j["frames_lost"], j["frames_skipped"], format_args!("{:.1}", f("fps")), j["backend"].as_str().unwrap_or("?"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
     );
+    if let Some(kf) = j.get("keyframes").and_then(Value::as_u64) {
+        let _ = write!(
+            line,
+            "\n{kf} keyframes, {} map points; local optimization median {:.2} ms",
+            j["map_points"],
+            j["ba_ms"]["median"].as_f64().unwrap_or(f64::NAN)
+        );
+    }
     if let (Some(at), Some(rp)) = (&summary.ate, &summary.rpe) {
         let _ = write!(
             line,
@@ -77,11 +137,6 @@ pub fn run(a: RunArgs) -> Result<()> {
 
 /// Runs and writes everything into `a.out`; returns the summary.
 pub fn execute(a: &RunArgs) -> Result<RunSummary> {
-    if !a.vo_only {
-        tracing::warn!(
-            "the back end (map, bundle adjustment) is not built yet: running visual odometry only"
-        );
-    }
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -95,26 +150,38 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         seq.camera_source
     );
     stride_frontend::set_opencv_threads(if a.deterministic { 1 } else { 2 })?;
+    let base = if a.backend().is_some() {
+        VoConfig::default()
+    } else {
+        VoConfig::odometry_only()
+    };
     let config = VoConfig {
         seed: a.seed,
-        ..VoConfig::default()
+        ..base
     };
-    let output = run_vo(&seq, config, a.max_frames, true)?;
+    let output = run_slam(&seq, config, a.backend(), a.max_frames, true)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let traj = output.trajectory()?;
     write_tum_trajectory(&a.out.join("trajectory.tum"), &traj)?;
+    if let Some(b) = &output.backend {
+        write_tum_trajectory(
+            &a.out.join("trajectory_live.tum"),
+            &output.live_trajectory()?,
+        )?;
+        write_tum_trajectory(
+            &a.out.join("keyframes.tum"),
+            &b.keyframe_trajectory(&output),
+        )?;
+    }
     write_frames_csv(&a.out.join("frames.csv"), &output)?;
 
+    let ate_opts = AteOptions {
+        align: Align::Se3,
+        ..AteOptions::for_preset(Preset::Evo)
+    };
     let (ate_r, rpe_r) = match &seq.groundtruth {
         Some(gt) => {
-            let at = ate(
-                gt,
-                &traj,
-                &AteOptions {
-                    align: Align::Se3,
-                    ..AteOptions::for_preset(Preset::Evo)
-                },
-            );
+            let at = ate(gt, &traj, &ate_opts);
             let rp = rpe(gt, &traj, &RpeOptions::for_preset(Preset::Evo));
             match (at, rp) {
                 (Ok(at), Ok(rp)) => (Some(at), Some(rp)),
@@ -128,12 +195,25 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         }
         None => (None, None),
     };
-    let json = report_json(a, &seq, &output, ate_r.as_ref(), rpe_r.as_ref());
+    // The poses as they were known frame by frame, before later corrections: what a
+    // consumer of live poses (a mapper, a controller) gets.
+    let ate_live = match (&seq.groundtruth, output.backend.is_some()) {
+        (Some(gt), true) => ate(gt, &output.live_trajectory()?, &ate_opts).ok(),
+        _ => None,
+    };
+    let json = report_json(
+        a,
+        &seq,
+        &output,
+        ate_r.as_ref(),
+        rpe_r.as_ref(),
+        ate_live.as_ref(),
+    );
     write_atomic(
         &a.out.join("report.json"),
         serde_json::to_string_pretty(&json)?.as_bytes(),
     )?;
-    write_html(&a.out, a, &json, &output, ate_r.as_ref(), rpe_r.as_ref())?;
+    super::run_report::write_html(&a.out, a, &json, &output, ate_r.as_ref(), rpe_r.as_ref())?;
     Ok(RunSummary {
         json,
         ate: ate_r,
@@ -143,16 +223,17 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
 }
 
 fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
-    let mut s = String::from("index,t,status,keyframe,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,total_ms\n");
+    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,total_ms,wait_ms\n");
     for f in &out.frames {
         let t = &f.timing;
         let _ = writeln!(
             s,
-            "{},{:.6},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
             f.index,
             f.t_s,
-            f.status,
+            f.status.as_str(),
             u8::from(f.keyframe),
+            f.keyframe_id,
             f.tracked,
             f.inliers,
             f.decode_s * 1e3,
@@ -160,7 +241,8 @@ fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
             t.track_s * 1e3,
             t.ransac_s * 1e3,
             t.refine_s * 1e3,
-            t.total_s * 1e3
+            t.total_s * 1e3,
+            f.wait_s * 1e3
         );
     }
     write_atomic(path, s.as_bytes()).with_context(|| format!("writing {}", path.display()))
@@ -172,13 +254,14 @@ fn report_json(
     out: &RunOutput,
     at: Option<&AteResult>,
     rp: Option<&RpeResult>,
+    at_live: Option<&AteResult>,
 ) -> Value {
     let processed: Vec<_> = out
         .frames
         .iter()
-        .filter(|f| f.status != "skipped")
+        .filter(|f| f.status != FrameStatus::Skipped)
         .collect();
-    let count = |s: &str| out.frames.iter().filter(|f| f.status == s).count();
+    let count = |s: FrameStatus| out.frames.iter().filter(|f| f.status == s).count();
     let stage = |f: fn(&crate::pipeline::FrameRecord) -> f64| {
         let (m, p) = median_p95(processed.iter().map(|r| f(r) * 1e3));
         json!({"median": m, "p95": p})
@@ -190,28 +273,79 @@ fn report_json(
     timing.insert("ransac".into(), stage(|r| r.timing.ransac_s));
     timing.insert("refine".into(), stage(|r| r.timing.refine_s));
     timing.insert("total".into(), stage(|r| r.timing.total_s));
+    let rate = |s: f64| {
+        if s > 0.0 {
+            processed.len() as f64 / s
+        } else {
+            f64::NAN
+        }
+    };
     let mut m = Map::new();
     m.insert("frames".into(), json!(out.frames.len()));
-    m.insert(
-        "frames_tracked".into(),
-        json!(count("tracked") + count("initialized")),
-    );
-    m.insert("frames_lost".into(), json!(count("lost")));
-    m.insert("frames_skipped".into(), json!(count("skipped")));
+    m.insert("frames_tracked".into(), json!(count(FrameStatus::Tracked)));
+    m.insert("frames_lost".into(), json!(count(FrameStatus::Lost)));
+    m.insert("frames_skipped".into(), json!(count(FrameStatus::Skipped)));
     m.insert(
         "keyframes".into(),
         json!(out.frames.iter().filter(|f| f.keyframe).count()),
     );
+    m.insert("fps".into(), json!(rate(out.wall_s)));
+    m.insert("odometry_fps".into(), json!(rate(out.vo_wall_s)));
+    let waits: Vec<f64> = out
+        .frames
+        .iter()
+        .map(|f| f.wait_s)
+        .filter(|w| *w > 0.0)
+        .collect();
     m.insert(
-        "fps".into(),
-        json!(if out.vo_wall_s > 0.0 {
-            processed.len() as f64 / out.vo_wall_s
-        } else {
-            f64::NAN
-        }),
+        "frontend_waits".into(),
+        json!({"frames": waits.len(), "total_ms": waits.iter().sum::<f64>() * 1e3}),
     );
     m.insert("timing_ms".into(), Value::Object(timing));
-    m.insert("mode".into(), json!("vo"));
+    m.insert("backend".into(), json!(a.backend_name()));
+    if let Some(b) = &out.backend {
+        let (med, p95) = median_p95(b.keyframes.iter().map(|k| k.time_s * 1e3));
+        m.insert(
+            "ba_ms".into(),
+            json!({"median": med, "p95": p95, "count": b.keyframes.len(),
+                   "final": b.final_solve.as_ref().map(|s| s.time_s * 1e3)}),
+        );
+        m.insert("map_points".into(), json!(b.map_points));
+        m.insert("map_keyframes".into(), json!(b.map_keyframes));
+        m.insert("culled_keyframes".into(), json!(b.culled_keyframes));
+        let sum = |f: fn(&stride_backend::KeyframeReport) -> usize| -> usize {
+            b.keyframes.iter().map(f).sum()
+        };
+        m.insert(
+            "associations".into(),
+            json!({"by_track": sum(|k| k.by_track), "by_orb": sum(|k| k.by_orb),
+                   "new_points": sum(|k| k.new_points), "outliers": sum(|k| k.outliers),
+                   "odometry_edges": sum(|k| usize::from(k.odometry_edge))}),
+        );
+        m.insert(
+            "schedule".into(),
+            json!(if a.free_running { "free" } else { "fixed" }),
+        );
+        let c = &b.config;
+        m.insert(
+            "backend_config".into(),
+            json!({
+                "window_keyframes": c.window_keyframes,
+                "max_fixed_keyframes": c.max_fixed_keyframes,
+                "local_iterations": c.local_iterations,
+                "final_iterations": c.final_iterations,
+                "min_reobserved": c.min_reobserved,
+                "model_noise_m": c.model_noise_m,
+                "depth_noise_scale": c.depth_noise_scale,
+                "huber_chi2": c.huber_chi2,
+                "outlier_chi2": c.outlier_chi2,
+                "match_max_hamming": c.matching.max_hamming,
+                "match_ratio": c.matching.ratio,
+                "match_chi2_gate": c.matching.chi2_gate,
+                "sync_lag_frames": SYNC_LAG_FRAMES,
+            }),
+        );
+    }
     m.insert("seed".into(), json!(a.seed));
     m.insert("dataset".into(), json!(a.dataset.display().to_string()));
     m.insert("camera".into(), json!(format!("{:?}", seq.camera_source)));
@@ -221,6 +355,9 @@ fn report_json(
     );
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());
+    }
+    if let Some(at) = at_live {
+        m.insert("ate_live".into(), at.to_json());
     }
     if let Some(rp) = rp {
         m.insert("rpe".into(), rp.to_json());
@@ -238,136 +375,4 @@ fn report_json(
         m.insert("skipped".into(), Value::Array(skipped));
     }
     Value::Object(m)
-}
-
-fn write_html(
-    dir: &Path,
-    a: &RunArgs,
-    j: &Value,
-    out: &RunOutput,
-    at: Option<&AteResult>,
-    rp: Option<&RpeResult>,
-) -> Result<()> {
-    let mut rep = Report::new("stride run: visual odometry");
-    rep.paragraph(format!(
-        "Dataset {}; {} frames; seed {}.",
-        a.dataset.display(),
-        out.frames.len(),
-        a.seed
-    ));
-    let g = |k: &str| j.get(k).cloned().unwrap_or(Value::Null).to_string();
-    rep.table(
-        &["quantity", "value"],
-        vec![
-            vec!["frames".into(), g("frames")],
-            vec!["tracked".into(), g("frames_tracked")],
-            vec![
-                "lost (constant-velocity prediction)".into(),
-                g("frames_lost"),
-            ],
-            vec!["skipped (could not load)".into(), g("frames_skipped")],
-            vec!["keyframes".into(), g("keyframes")],
-            vec![
-                "VO frames/s (decoding excluded)".into(),
-                format!("{:.1}", j["fps"].as_f64().unwrap_or(f64::NAN)),
-            ],
-        ],
-    );
-    let stages = ["decode", "detect", "track", "ransac", "refine", "total"];
-    rep.table(
-        &["stage", "median (ms)", "p95 (ms)"],
-        stages
-            .iter()
-            .map(|s| {
-                let v = &j["timing_ms"][*s];
-                vec![
-                    (*s).to_owned(),
-                    format!("{:.3}", v["median"].as_f64().unwrap_or(f64::NAN)),
-                    format!("{:.3}", v["p95"].as_f64().unwrap_or(f64::NAN)),
-                ]
-            })
-            .collect(),
-    );
-    if let Some(at) = at {
-        at.add_to_report(&mut rep, "ate");
-    }
-    if let Some(rp) = rp {
-        rp.add_to_report(&mut rep, "rpe");
-    }
-    let t0 = out.frames.first().map_or(0.0, |f| f.t_s);
-    let per_frame = [
-        Chart {
-            title: "Tracking".into(),
-            x_label: "time (s)".into(),
-            y_label: "keypoints".into(),
-            series: vec![
-                Series::line(
-                    "tracked",
-                    PALETTE[0],
-                    out.frames
-                        .iter()
-                        .map(|f| (f.t_s - t0, f.tracked as f64))
-                        .collect(),
-                ),
-                Series::line(
-                    "inliers",
-                    PALETTE[2],
-                    out.frames
-                        .iter()
-                        .map(|f| (f.t_s - t0, f.inliers as f64))
-                        .collect(),
-                ),
-                Series::line(
-                    "lost/skipped",
-                    PALETTE[1],
-                    out.frames
-                        .iter()
-                        .filter(|f| f.status == "lost" || f.status == "skipped")
-                        .map(|f| (f.t_s - t0, 0.0))
-                        .collect(),
-                )
-                .with_style(Style::Markers),
-            ],
-            y_from_zero: true,
-            ..Chart::default()
-        },
-        Chart {
-            title: "Time per frame".into(),
-            x_label: "time (s)".into(),
-            y_label: "ms".into(),
-            series: vec![
-                Series::line(
-                    "total",
-                    PALETTE[0],
-                    out.frames
-                        .iter()
-                        .map(|f| (f.t_s - t0, f.timing.total_s * 1e3))
-                        .collect(),
-                ),
-                Series::line(
-                    "track",
-                    PALETTE[2],
-                    out.frames
-                        .iter()
-                        .map(|f| (f.t_s - t0, f.timing.track_s * 1e3))
-                        .collect(),
-                ),
-                Series::line(
-                    "decode (other thread)",
-                    PALETTE[4],
-                    out.frames
-                        .iter()
-                        .map(|f| (f.t_s - t0, f.decode_s * 1e3))
-                        .collect(),
-                )
-                .with_style(Style::Dashed),
-            ],
-            y_from_zero: true,
-            ..Chart::default()
-        },
-    ];
-    rep.figure("tracking", render(&per_frame, 2, 560.0, 360.0), "Left: keypoints tracked and RANSAC inliers per frame, failures marked. Right: processing time per frame.");
-    rep.write(dir)
-        .with_context(|| format!("writing the report into {}", dir.display()))?;
-    Ok(())
 }

@@ -1,0 +1,171 @@
+//! Associating a new keyframe's features with map points: through their tracks, then by
+//! ORB matching near the predicted projections of the local map.
+
+use crate::backend::Backend;
+use crate::map::{KeyframeId, MapPoint, PointId};
+use crate::matching::match_points;
+use nalgebra::Matrix6;
+use std::collections::{BTreeSet, HashMap};
+
+impl Backend {
+    /// Associates features whose track already has a map point (through the previous
+    /// keyframe, which describes every live track), each pair gated by its 3-D Mahalanobis
+    /// distance under the predicted pose. Returns the associations and the pose's
+    /// covariance.
+    pub(crate) fn associate_tracks(
+        &mut self,
+        id: KeyframeId,
+        previous: Option<KeyframeId>,
+        pose_cov: Matrix6<f64>,
+    ) -> (usize, Matrix6<f64>) {
+        let Some(prev) = previous.and_then(|p| self.map.keyframe(p)) else {
+            return (0, pose_cov);
+        };
+        let by_track: HashMap<u64, PointId> = prev
+            .features
+            .iter()
+            .filter_map(|f| Some((f.track_id, f.point?)))
+            .collect();
+        let Some(kf) = self.map.keyframe(id) else {
+            return (0, pose_cov);
+        };
+        let candidates: Vec<(usize, PointId)> = kf
+            .features
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| f.measurement.is_some())
+            .filter_map(|(i, f)| Some((i, *by_track.get(&f.track_id)?)))
+            .collect();
+        let Some(kf) = self.map.keyframe(id) else {
+            return (0, pose_cov);
+        };
+        let camera_from_world = kf.world_from_camera.inverse();
+        let r_cw = camera_from_world.rotation.to_rotation_matrix().into_inner();
+        // The prediction's own uncertainty widens the gate: a frontend pose is exact only
+        // relative to its own points.
+        let pose_var = pose_cov.fixed_view::<3, 3>(0, 0).trace() / 3.0;
+        let gate = self.config.matching.chi2_gate;
+        let model = self.config.matching.model_noise_m.powi(2) + pose_var.max(0.0);
+        let pairs: Vec<(usize, PointId)> = candidates
+            .iter()
+            .filter_map(|&(i, pid)| {
+                let m = kf.features.get(i)?.measurement?;
+                let p = self.map.point(pid)?;
+                let q = camera_from_world * p.p_world;
+                let cov_p = p
+                    .covariance()
+                    .map_or(nalgebra::Matrix3::zeros(), |c| r_cw * c * r_cw.transpose());
+                let s = m.cov + cov_p + nalgebra::Matrix3::identity() * model;
+                let r = m.p - q;
+                let chi2 = r.dot(&(s.try_inverse()? * r));
+                (chi2 <= gate).then_some((i, pid))
+            })
+            .collect();
+        (self.observe(id, &pairs, false), pose_cov)
+    }
+
+    /// Records the associations `(feature, point)` of keyframe `id`; returns how many took.
+    /// `projected`: whether the points' `visible` counters were already counted (ORB
+    /// matching counts every point it projects into the image).
+    fn observe(&mut self, id: KeyframeId, pairs: &[(usize, PointId)], projected: bool) -> usize {
+        let mut n = 0;
+        for &(f, pid) in pairs {
+            if self.map.add_observation(pid, id, f) {
+                if let Some(p) = self.map.point_mut(pid) {
+                    p.visible += u32::from(!projected);
+                    p.found += 1;
+                }
+                n += 1;
+            }
+        }
+        n
+    }
+
+    /// The keyframes whose points are matched into keyframe `id`: the previous keyframe's
+    /// covisible ones, and those near the predicted pose.
+    fn local_map(&self, id: KeyframeId, previous: Option<KeyframeId>) -> BTreeSet<KeyframeId> {
+        let mut set = BTreeSet::new();
+        if let Some(prev) = previous.and_then(|p| self.map.keyframe(p)) {
+            set.insert(prev.id);
+            set.extend(
+                prev.covisible(1)
+                    .into_iter()
+                    .take(self.config.local_map_keyframes)
+                    .map(|(k, _)| k),
+            );
+        }
+        let Some(kf) = self.map.keyframe(id) else {
+            return set;
+        };
+        let (t, fwd) = (
+            kf.world_from_camera.translation.vector,
+            kf.world_from_camera.rotation * nalgebra::Vector3::z(),
+        );
+        let cos_max = self.config.nearby_angle_deg.to_radians().cos();
+        let mut near: Vec<(f64, KeyframeId)> = self
+            .map
+            .keyframes()
+            .values()
+            .filter(|k| k.id != id)
+            .filter_map(|k| {
+                let d = (k.world_from_camera.translation.vector - t).norm();
+                let f = k.world_from_camera.rotation * nalgebra::Vector3::z();
+                (d <= self.config.nearby_radius_m && f.dot(&fwd) >= cos_max).then_some((d, k.id))
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        set.extend(
+            near.into_iter()
+                .take(self.config.local_map_keyframes)
+                .map(|(_, k)| k),
+        );
+        set
+    }
+
+    /// ORB matching of the unassociated features of keyframe `id` against the local map.
+    pub(crate) fn match_local_map(
+        &mut self,
+        id: KeyframeId,
+        previous: Option<KeyframeId>,
+        pose_cov: &Matrix6<f64>,
+    ) -> usize {
+        let local = self.local_map(id, previous);
+        let Some(kf) = self.map.keyframe(id) else {
+            return 0;
+        };
+        let seen: BTreeSet<PointId> = kf.points().collect();
+        let mut cand_ids: BTreeSet<PointId> = BTreeSet::new();
+        for k in &local {
+            if let Some(other) = self.map.keyframe(*k) {
+                cand_ids.extend(other.points().filter(|p| !seen.contains(p)));
+            }
+        }
+        let candidates: Vec<(PointId, &MapPoint)> = cand_ids
+            .iter()
+            .filter_map(|&p| Some((p, self.map.point(p)?)))
+            .collect();
+        let eligible: Vec<usize> = kf
+            .features
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| f.point.is_none() && f.measurement.is_some() && f.descriptor.is_some())
+            .map(|(i, _)| i)
+            .collect();
+        let (matches, visible) = match_points(
+            &self.camera,
+            &kf.world_from_camera,
+            pose_cov,
+            &kf.features,
+            &eligible,
+            &candidates,
+            &self.config.matching,
+        );
+        for p in visible {
+            if let Some(mp) = self.map.point_mut(p) {
+                mp.visible += 1;
+            }
+        }
+        let pairs: Vec<(usize, PointId)> = matches.iter().map(|m| (m.feature, m.point)).collect();
+        self.observe(id, &pairs, true)
+    }
+}

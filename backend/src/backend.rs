@@ -1,0 +1,328 @@
+//! The back end: adds the frontend's keyframes to the map, associates their features with
+//! map points (by track, then by ORB matching near predicted positions), optimizes a local
+//! window, culls what is redundant, and reports each keyframe's optimized pose.
+//!
+//! The odometry is never changed by the back end: feeding optimized points back into its
+//! tracking made the final trajectory worse on real data (teddy_200, five seeds: 7.5 mm
+//! against 4.8 mm ATE), because frames tracked against a mix of optimized and odometry
+//! points are no longer consistent with the keyframe their pose is kept relative to. The
+//! corrections reach the outputs instead (live poses, final trajectory).
+
+use crate::ba::{solve, SolveReport, SolverOptions};
+use crate::config::{BackendConfig, BackendMode};
+use crate::error::BackendError;
+use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
+use crate::se3::{is_finite, left_from_right};
+use crate::window::{build, local_window, KeyframeEdge, MapProblem};
+use nalgebra::{Isometry3, Matrix6, Vector6};
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::Instant;
+use stride_core::camera::PinholeCamera;
+use stride_frontend::KeyframeInfo;
+
+/// A keyframe as the frontend hands it over.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeInput {
+    /// Index of the frame in the sequence.
+    pub frame_index: usize,
+    /// Frame time (s).
+    pub t_s: f64,
+    /// The frontend's `world_from_camera` for it (m).
+    pub world_from_camera: Isometry3<f64>,
+    /// Features and odometry link.
+    pub info: KeyframeInfo,
+}
+
+/// What happened to one keyframe.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeReport {
+    /// The keyframe.
+    pub keyframe_id: KeyframeId,
+    /// Features associated with map points through their track.
+    pub by_track: usize,
+    /// Features associated with map points by ORB matching.
+    pub by_orb: usize,
+    /// New map points.
+    pub new_points: usize,
+    /// Whether the odometry link joined the optimization (too few re-observations).
+    pub odometry_edge: bool,
+    /// Observations removed as outliers after optimizing.
+    pub outliers: usize,
+    /// Points and keyframes culled.
+    pub culled_points: usize,
+    /// See `culled_points`.
+    pub culled_keyframes: usize,
+    /// The local optimization.
+    pub solve: Option<SolveReport>,
+    /// Wall time of the whole step (s).
+    pub time_s: f64,
+}
+
+/// The back end's answer to a keyframe: its optimized pose and a report. A consumer of live
+/// poses moves the odometry's later poses by the correction this implies (see
+/// [`KeyframeUpdate::correction`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct KeyframeUpdate {
+    /// The keyframe.
+    pub keyframe_id: KeyframeId,
+    /// Its `world_from_camera` after the local optimization (m).
+    pub world_from_keyframe: Isometry3<f64>,
+    /// What was done.
+    pub report: KeyframeReport,
+}
+
+impl KeyframeUpdate {
+    /// `optimized_from_odometry`: the rigid motion that takes the odometry's world onto the
+    /// back end's, given the odometry's own pose of the same keyframe.
+    pub fn correction(&self, odometry_world_from_keyframe: &Isometry3<f64>) -> Isometry3<f64> {
+        self.world_from_keyframe * odometry_world_from_keyframe.inverse()
+    }
+}
+
+/// The back end. Feed keyframes in order with [`Backend::add_keyframe`]; call
+/// [`Backend::finish`] at the end for a full optimization.
+pub struct Backend {
+    pub(crate) config: BackendConfig,
+    pub(crate) camera: PinholeCamera,
+    pub(crate) map: Map,
+    pub(crate) first: Option<KeyframeId>,
+    pub(crate) newest: Option<KeyframeId>,
+    /// Pose-graph mode: relative motions measured between keyframes.
+    pub(crate) pose_edges: Vec<KeyframeEdge>,
+}
+
+/// The information of a frontend pose estimate, moved into the optimizer's tangent space;
+/// `fallback` when the estimate has none (a predicted pose).
+fn odometry_information(
+    world_from_camera: &Isometry3<f64>,
+    info_left: &Matrix6<f64>,
+    fallback: (f64, f64),
+) -> Matrix6<f64> {
+    let a = left_from_right(world_from_camera);
+    let info = a.transpose() * info_left * a;
+    let info = (info + info.transpose()) * 0.5;
+    let usable = info.iter().all(|v| v.is_finite()) && info.cholesky().is_some();
+    if usable {
+        info
+    } else {
+        let (t, r) = fallback;
+        Matrix6::from_diagonal(&Vector6::new(
+            1.0 / (t * t),
+            1.0 / (t * t),
+            1.0 / (t * t),
+            1.0 / (r * r),
+            1.0 / (r * r),
+            1.0 / (r * r),
+        ))
+    }
+}
+
+impl Backend {
+    /// A back end for a camera. Validates the configuration.
+    pub fn new(camera: PinholeCamera, config: BackendConfig) -> Result<Self, BackendError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            camera,
+            map: Map::new(),
+            first: None,
+            newest: None,
+            pose_edges: Vec::new(),
+        })
+    }
+
+    /// The map.
+    pub fn map(&self) -> &Map {
+        &self.map
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &BackendConfig {
+        &self.config
+    }
+
+    /// Adds a keyframe: association, new points, local optimization, culling.
+    pub fn add_keyframe(&mut self, input: KeyframeInput) -> Result<KeyframeUpdate, BackendError> {
+        let start = Instant::now();
+        let id = input.info.id;
+        let bad = |reason: String| BackendError::BadKeyframe { id, reason };
+        if !is_finite(&input.world_from_camera) {
+            return Err(bad("its pose is not finite".into()));
+        }
+        // 1. Predict the pose from the previous keyframe's optimized pose and the odometry.
+        let link = input.info.odometry.as_ref();
+        let predicted = link
+            .and_then(|l| Some(self.map.pose_of(l.previous_id)? * l.previous_from_this))
+            .filter(is_finite)
+            .unwrap_or(input.world_from_camera);
+        let odometry = link.map(|l| OdometryEdge {
+            previous: l.previous_id,
+            previous_from_this: l.previous_from_this,
+            information: odometry_information(
+                &input.world_from_camera,
+                &l.information,
+                self.config.predicted_link_sigma,
+            ),
+            active: false,
+        });
+        let pose_cov = odometry
+            .as_ref()
+            .and_then(|o| o.information.try_inverse())
+            .unwrap_or_else(|| Matrix6::identity() * 1e-4);
+        let kf = Keyframe {
+            id,
+            frame_index: input.frame_index,
+            t_s: input.t_s,
+            world_from_camera: predicted,
+            features: input
+                .info
+                .features
+                .iter()
+                .map(|f| Feature {
+                    track_id: f.track_id,
+                    px: f.px,
+                    measurement: f.measurement,
+                    descriptor: f.descriptor,
+                    point: None,
+                })
+                .collect(),
+            covisibility: BTreeMap::new(),
+            odometry,
+        };
+        if !self.map.insert_keyframe(kf) {
+            return Err(bad("a keyframe with this identifier exists".into()));
+        }
+        let previous = self.newest;
+        self.first.get_or_insert(id);
+        self.newest = Some(id);
+        let mut report = KeyframeReport {
+            keyframe_id: id,
+            by_track: 0,
+            by_orb: 0,
+            new_points: 0,
+            odometry_edge: false,
+            outliers: 0,
+            culled_points: 0,
+            culled_keyframes: 0,
+            solve: None,
+            time_s: 0.0,
+        };
+        // 2. Association: tracks first, then ORB matching against the local map.
+        let (by_track, pose_cov) = self.associate_tracks(id, previous, pose_cov);
+        report.by_track = by_track;
+        report.by_orb = self.match_local_map(id, previous, &pose_cov);
+        // 3. New points for what matched nothing.
+        let n = self.map.keyframe(id).map_or(0, |k| k.features.len());
+        for f in 0..n {
+            if self.map.create_point(id, f).is_some() {
+                report.new_points += 1;
+            }
+        }
+        // 4. A keyframe that re-observes too little is tied by its odometry.
+        if report.by_track + report.by_orb < self.config.min_reobserved {
+            if let Some(e) = self.map.odometry_mut(id) {
+                e.active = true;
+                report.odometry_edge = true;
+            }
+        }
+        if self.config.mode == BackendMode::PoseGraph {
+            self.measure_pose_edges(id);
+        }
+        // 5. Optimize the local window, drop outliers, cull.
+        let window = local_window(&self.map, id, &self.config);
+        let (solve_report, outliers) = self.optimize(&window, self.config.local_iterations)?;
+        report.solve = solve_report;
+        report.outliers = outliers;
+        report.culled_keyframes = self.cull_keyframes(&window);
+        report.culled_points = self.cull_points(id);
+        report.time_s = start.elapsed().as_secs_f64();
+        Ok(KeyframeUpdate {
+            keyframe_id: id,
+            world_from_keyframe: self.map.pose_of(id).unwrap_or(predicted),
+            report,
+        })
+    }
+
+    /// Optimizes `free` keyframes (and their points in bundle-adjustment mode), removes the
+    /// outlier observations and optimizes again if there were any. Returns the first
+    /// solve's report and the number of outliers.
+    fn optimize(
+        &mut self,
+        free: &[KeyframeId],
+        iterations: usize,
+    ) -> Result<(Option<SolveReport>, usize), BackendError> {
+        let with_points = self.config.mode == BackendMode::BundleAdjustment;
+        let gauge = self.gauge(free);
+        let max_fixed = self.config.max_fixed_keyframes;
+        let mut mp: MapProblem = build(
+            &self.map,
+            free,
+            &gauge,
+            with_points,
+            &self.pose_edges,
+            max_fixed,
+            &self.config,
+        );
+        if mp.problem.poses.iter().all(|p| p.fixed) && mp.problem.points.is_empty() {
+            return Ok((None, 0));
+        }
+        let opts = SolverOptions {
+            max_iterations: iterations,
+            point_huber_chi2: Some(self.config.huber_chi2),
+            ..SolverOptions::default()
+        };
+        let first = solve(&mut mp.problem, &opts)?;
+        mp.write_back(&mut self.map);
+        if !with_points {
+            self.place_points(free);
+            return Ok((Some(first), 0));
+        }
+        let outliers = mp.outliers(self.config.outlier_chi2);
+        for &(p, k) in &outliers {
+            self.map.remove_observation(p, k);
+        }
+        if !outliers.is_empty() {
+            let mut again = build(&self.map, free, &gauge, true, &[], max_fixed, &self.config);
+            solve(&mut again.problem, &opts)?;
+            again.write_back(&mut self.map);
+        }
+        Ok((Some(first), outliers.len()))
+    }
+
+    /// The keyframes held fixed for the gauge: the first keyframe, and when the window has
+    /// no fixed neighbour at all, its oldest keyframe.
+    fn gauge(&self, free: &[KeyframeId]) -> BTreeSet<KeyframeId> {
+        let mut g = BTreeSet::new();
+        if let Some(f) = self.first {
+            g.insert(f);
+        }
+        let free_set: BTreeSet<KeyframeId> = free.iter().copied().collect();
+        let anchored = free.iter().any(|k| g.contains(k))
+            || free.iter().filter_map(|k| self.map.keyframe(*k)).any(|kf| {
+                kf.covisibility.keys().any(|o| !free_set.contains(o))
+                    || kf
+                        .odometry
+                        .as_ref()
+                        .is_some_and(|e| e.active && !free_set.contains(&e.previous))
+            });
+        if !anchored {
+            if let Some(&oldest) = free.iter().min() {
+                g.insert(oldest);
+            }
+        }
+        g
+    }
+
+    /// The final optimization of every keyframe and point.
+    pub fn finish(&mut self) -> Result<Option<SolveReport>, BackendError> {
+        let all: Vec<KeyframeId> = self.map.keyframes().keys().copied().collect();
+        if all.len() < 2 {
+            return Ok(None);
+        }
+        let (report, _) = self.optimize(&all, self.config.final_iterations)?;
+        if let Some(newest) = self.newest {
+            self.cull_points(newest);
+        }
+        Ok(report)
+    }
+}

@@ -1,0 +1,313 @@
+//! The back end end to end on synthetic keyframes: a camera sweeping back and forth in
+//! front of a cloud of points, an odometry that drifts, features with the sensor model's
+//! noise, tracks that break when points leave the view (so that re-observing them takes ORB
+//! matching). Also the bad inputs: keyframes without depth, features that match nothing,
+//! a non-finite pose, and a back-end thread that fails.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use crate::backend::{Backend, KeyframeInput};
+use crate::config::{BackendConfig, BackendMode};
+use crate::thread::BackendThread;
+use nalgebra::{Isometry3, Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use std::collections::HashMap;
+use stride_core::camera::PinholeCamera;
+use stride_core::rng::SplitMix64;
+use stride_core::uncertainty::PrimeSenseModel;
+use stride_frontend::points::Measurement;
+use stride_frontend::{KeyframeFeature, KeyframeInfo, OdometryLink};
+
+fn camera() -> PinholeCamera {
+    PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480).unwrap()
+}
+
+/// The synthetic run: true poses, the odometry's drifting poses, and the keyframe inputs.
+struct Run {
+    truth: Vec<Isometry3<f64>>,
+    odometry: Vec<Isometry3<f64>>,
+    inputs: Vec<KeyframeInput>,
+    /// Observations of points seen before under another track: what only ORB matching
+    /// can associate.
+    reobservations: usize,
+}
+
+fn descriptor(point: usize, rng: &mut SplitMix64) -> [u8; 32] {
+    let mut d = [0u8; 32];
+    let mut s = SplitMix64::new(point as u64 * 7919 + 1);
+    for b in &mut d {
+        *b = (s.next_u64() & 0xFF) as u8;
+    }
+    // A few bits differ from view to view.
+    for _ in 0..6 {
+        let bit = rng.below(256);
+        d[bit / 8] ^= 1 << (bit % 8);
+    }
+    d
+}
+
+/// `n` keyframes sweeping right then back left in front of the points (so that the way
+/// back re-observes points whose tracks broke), odometry drifting by `drift` per step.
+fn synthetic_run(n: usize, drift: f64, seed: u64) -> Run {
+    let cam = camera();
+    let model = PrimeSenseModel::default();
+    let mut rng = SplitMix64::new(seed);
+    let points: Vec<Point3<f64>> = (0..500)
+        .map(|_| {
+            Point3::new(
+                rng.range(-2.5, 3.5),
+                rng.range(-1.2, 1.2),
+                rng.range(1.8, 4.0),
+            )
+        })
+        .collect();
+    let truth: Vec<Isometry3<f64>> = (0..n)
+        .map(|i| {
+            let s = i as f64 / (n - 1) as f64;
+            let x = if s < 0.5 { 2.0 * s } else { 2.0 * (1.0 - s) };
+            Isometry3::from_parts(
+                Translation3::new(1.2 * x, 0.05 * (7.0 * s).sin(), 0.1 * x),
+                UnitQuaternion::from_euler_angles(0.02 * (5.0 * s).sin(), 0.15 * x, 0.01),
+            )
+        })
+        .collect();
+    // Odometry: true relative motions with a bias (drift) and noise.
+    let mut odometry = vec![truth[0]];
+    for i in 1..n {
+        let rel = truth[i - 1].inverse() * truth[i];
+        let err = Isometry3::from_parts(
+            Translation3::new(
+                drift + 0.001 * rng.normal(),
+                0.001 * rng.normal(),
+                0.5 * drift,
+            ),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 2.0 * drift, 0.0)),
+        );
+        odometry.push(odometry[i - 1] * rel * err);
+    }
+    let mut track_of: HashMap<usize, u64> = HashMap::new();
+    let mut ever_seen = std::collections::HashSet::new();
+    let mut reobservations = 0;
+    let mut next_track = 0u64;
+    let mut inputs = Vec::new();
+    for (i, t) in truth.iter().enumerate() {
+        let mut features = Vec::new();
+        let mut visible_now = Vec::new();
+        for (j, p) in points.iter().enumerate() {
+            let q = t.inverse() * p;
+            let Some(px) = cam.project(&q).filter(|px| q.z > 0.5 && cam.contains(px)) else {
+                continue;
+            };
+            let cov = model.covariance(&cam, px.x, px.y, q.z);
+            let noise = cov.cholesky().unwrap().l()
+                * Vector3::new(rng.normal(), rng.normal(), rng.normal());
+            if !track_of.contains_key(&j) && !ever_seen.insert(j) {
+                reobservations += 1;
+            }
+            let track = *track_of.entry(j).or_insert_with(|| {
+                next_track += 1;
+                next_track
+            });
+            visible_now.push(j);
+            features.push(KeyframeFeature {
+                track_id: track,
+                px: Point2::new(px.x as f32, px.y as f32),
+                measurement: Some(Measurement { p: q + noise, cov }),
+                descriptor: Some(descriptor(j, &mut rng)),
+            });
+        }
+        // Tracks of points out of view end; a point seen again gets a new track.
+        track_of.retain(|j, _| visible_now.contains(j));
+        let odometry_link = (i > 0).then(|| OdometryLink {
+            previous_id: i as u64 - 1,
+            previous_from_this: odometry[i - 1].inverse() * odometry[i],
+            information: Matrix6::identity() * 1e4,
+        });
+        inputs.push(KeyframeInput {
+            frame_index: i * 3,
+            t_s: i as f64 * 0.1,
+            world_from_camera: odometry[i],
+            info: KeyframeInfo {
+                id: i as u64,
+                features,
+                odometry: odometry_link,
+            },
+        });
+    }
+    Run {
+        truth,
+        odometry,
+        inputs,
+        reobservations,
+    }
+}
+
+/// RMS position error (m) of `est` against `truth` (same gauge: the first pose is shared).
+fn rms(est: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
+    let s: f64 = est
+        .iter()
+        .zip(truth)
+        .map(|(a, b)| (a.translation.vector - b.translation.vector).norm_squared())
+        .sum();
+    (s / est.len().max(1) as f64).sqrt()
+}
+
+#[test]
+fn bundle_adjustment_removes_most_of_the_odometry_drift() {
+    let run = synthetic_run(40, 0.004, 1);
+    let mut backend = Backend::new(camera(), BackendConfig::default()).unwrap();
+    let mut by_orb = 0;
+    for input in run.inputs.clone() {
+        let u = backend.add_keyframe(input).unwrap();
+        assert!(crate::se3::is_finite(&u.world_from_keyframe));
+        by_orb += u.report.by_orb;
+    }
+    backend.finish().unwrap();
+    let est: Vec<Isometry3<f64>> = (0..40).map(|k| backend.map().pose_of(k).unwrap()).collect();
+    let (e_ba, e_odo) = (rms(&est, &run.truth), rms(&run.odometry, &run.truth));
+    assert!(
+        e_ba < 0.25 * e_odo,
+        "bundle adjustment {:.1} mm against odometry {:.1} mm",
+        e_ba * 1e3,
+        e_odo * 1e3
+    );
+    assert!(e_ba < 0.01, "{e_ba}");
+    // The way back re-observes points whose tracks broke: only ORB matching finds them.
+    assert!(
+        by_orb * 2 > run.reobservations,
+        "ORB matches {by_orb} of {} re-observations",
+        run.reobservations
+    );
+    let grace = backend.config().point_grace_keyframes;
+    for p in backend.map().points().values() {
+        assert!(
+            p.observations.len() >= 2 || 39 - p.created_by < grace,
+            "single-observation points are culled after {grace} keyframes"
+        );
+    }
+}
+
+#[test]
+fn the_pose_graph_mode_also_corrects_drift() {
+    let run = synthetic_run(40, 0.004, 2);
+    let cfg = BackendConfig {
+        mode: BackendMode::PoseGraph,
+        ..BackendConfig::default()
+    };
+    let mut backend = Backend::new(camera(), cfg).unwrap();
+    for input in run.inputs.clone() {
+        backend.add_keyframe(input).unwrap();
+    }
+    backend.finish().unwrap();
+    let est: Vec<Isometry3<f64>> = (0..40).map(|k| backend.map().pose_of(k).unwrap()).collect();
+    let (e_pg, e_odo) = (rms(&est, &run.truth), rms(&run.odometry, &run.truth));
+    assert!(
+        e_pg < 0.6 * e_odo,
+        "pose graph {:.1} mm, odometry {:.1} mm",
+        e_pg * 1e3,
+        e_odo * 1e3
+    );
+}
+
+#[test]
+fn keyframes_without_depth_or_matches_keep_a_finite_pose_from_the_odometry() {
+    let mut run = synthetic_run(20, 0.002, 3);
+    // Keyframe 8 has no depth at all; keyframe 12's features match nothing (new tracks,
+    // foreign descriptors, measurements far from any map point).
+    for f in &mut run.inputs[8].info.features {
+        f.measurement = None;
+    }
+    let mut rng = SplitMix64::new(99);
+    for f in &mut run.inputs[12].info.features {
+        f.track_id += 1_000_000;
+        f.descriptor = Some(descriptor(100_000 + rng.below(1000), &mut rng));
+        if let Some(m) = f.measurement.as_mut() {
+            m.p += Vector3::new(0.5, -0.4, 0.7);
+        }
+    }
+    let mut backend = Backend::new(camera(), BackendConfig::default()).unwrap();
+    for input in run.inputs.clone() {
+        let id = input.info.id;
+        let u = backend.add_keyframe(input).unwrap();
+        assert!(
+            crate::se3::is_finite(&u.world_from_keyframe),
+            "keyframe {id}"
+        );
+        if id == 8 {
+            assert_eq!(u.report.by_track + u.report.by_orb + u.report.new_points, 0);
+            assert!(u.report.odometry_edge, "tied by its odometry");
+        }
+        if id == 12 {
+            assert_eq!(u.report.by_track + u.report.by_orb, 0, "{:?}", u.report);
+            assert!(u.report.odometry_edge);
+        }
+    }
+    backend.finish().unwrap();
+    // The keyframe without depth sits where the odometry puts it relative to its
+    // neighbours (within the drift), not somewhere arbitrary.
+    let p8 = backend.map().pose_of(8).unwrap();
+    assert!((p8.translation.vector - run.truth[8].translation.vector).norm() < 0.05);
+}
+
+#[test]
+fn a_bad_keyframe_is_an_error_through_the_thread_too() {
+    let run = synthetic_run(6, 0.002, 4);
+    let mut bad = run.inputs[3].clone();
+    bad.world_from_camera.translation.vector.x = f64::NAN;
+    let mut backend = Backend::new(camera(), BackendConfig::default()).unwrap();
+    for input in run.inputs.iter().take(3).cloned() {
+        backend.add_keyframe(input).unwrap();
+    }
+    let err = backend.add_keyframe(bad.clone()).unwrap_err();
+    assert!(err.to_string().contains("keyframe 3"), "{err}");
+    // In the thread: the error comes back with the next answer, and later calls say so
+    // too instead of hanging or pretending.
+    let mut thread =
+        BackendThread::spawn(Backend::new(camera(), BackendConfig::default()).unwrap()).unwrap();
+    for input in run.inputs.iter().take(3).cloned() {
+        thread.send(input).unwrap();
+    }
+    thread.send(bad).unwrap();
+    for _ in 0..3 {
+        thread.recv().unwrap();
+    }
+    let err = thread.recv().unwrap_err();
+    assert!(err.to_string().contains("not finite"), "{err}");
+    assert!(thread.send(run.inputs[4].clone()).is_err());
+}
+
+#[test]
+fn identical_runs_give_identical_maps() {
+    let run = synthetic_run(25, 0.003, 5);
+    let poses = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut b = Backend::new(camera(), BackendConfig::default()).unwrap();
+                for input in run.inputs.clone() {
+                    b.add_keyframe(input).unwrap();
+                }
+                b.finish().unwrap();
+                (0..25)
+                    .map(|k| b.map().pose_of(k).unwrap())
+                    .collect::<Vec<_>>()
+            })
+    };
+    assert_eq!(poses(1), poses(2));
+}
+
+#[test]
+fn invalid_configurations_are_refused() {
+    let bad = BackendConfig {
+        window_keyframes: 1,
+        ..BackendConfig::default()
+    };
+    assert!(Backend::new(camera(), bad).is_err());
+    let bad = BackendConfig {
+        depth_noise_scale: 0.5,
+        ..BackendConfig::default()
+    };
+    let err = Backend::new(camera(), bad).err().unwrap().to_string();
+    assert!(err.contains("depth_noise_scale"), "{err}");
+}

@@ -1,0 +1,148 @@
+//! The back end in its own thread: keyframes in and updates out over channels (owned
+//! messages, no shared map), so that the frontend never waits for an optimization unless
+//! it asks to.
+//!
+//! A thread that stops unexpectedly (a panic, an error) is reported as an error by the next
+//! call, never hidden: its error, or its panic message.
+
+use crate::ba::SolveReport;
+use crate::backend::{Backend, KeyframeInput, KeyframeUpdate};
+use crate::error::BackendError;
+use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
+use std::thread::JoinHandle;
+
+/// What the frontend sends.
+enum Request {
+    Keyframe(Box<KeyframeInput>),
+}
+
+/// The back end, running in a thread of its own.
+pub struct BackendThread {
+    requests: Option<Sender<Request>>,
+    updates: Receiver<Result<KeyframeUpdate, BackendError>>,
+    handle: Option<JoinHandle<Backend>>,
+    /// Keyframes sent and not yet answered.
+    pending: usize,
+}
+
+/// What the thread returns when it is finished: the back end (its map) and the final
+/// optimization's report.
+pub struct Finished {
+    /// The back end, after the final optimization.
+    pub backend: Backend,
+    /// The final optimization, when there was one.
+    pub final_solve: Option<SolveReport>,
+    /// Updates that were still queued when the run finished, in order.
+    pub late_updates: Vec<KeyframeUpdate>,
+}
+
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
+impl BackendThread {
+    /// Starts the thread.
+    pub fn spawn(mut backend: Backend) -> Result<Self, BackendError> {
+        let (req_tx, req_rx) = channel::<Request>();
+        let (upd_tx, upd_rx) = channel();
+        let handle = std::thread::Builder::new()
+            .name("stride-backend".into())
+            .spawn(move || {
+                while let Ok(Request::Keyframe(input)) = req_rx.recv() {
+                    let result = backend.add_keyframe(*input);
+                    let failed = result.is_err();
+                    if upd_tx.send(result).is_err() || failed {
+                        break;
+                    }
+                }
+                backend
+            })
+            .map_err(|e| BackendError::ThreadDied(format!("could not start: {e}")))?;
+        Ok(Self {
+            requests: Some(req_tx),
+            updates: upd_rx,
+            handle: Some(handle),
+            pending: 0,
+        })
+    }
+
+    /// Keyframes sent and not yet answered.
+    pub fn pending(&self) -> usize {
+        self.pending
+    }
+
+    /// Sends a keyframe (never blocks).
+    pub fn send(&mut self, input: KeyframeInput) -> Result<(), BackendError> {
+        let sent = self
+            .requests
+            .as_ref()
+            .is_some_and(|tx| tx.send(Request::Keyframe(Box::new(input))).is_ok());
+        if !sent {
+            return Err(self.death());
+        }
+        self.pending += 1;
+        Ok(())
+    }
+
+    /// The next update if one is ready (never blocks).
+    pub fn try_recv(&mut self) -> Result<Option<KeyframeUpdate>, BackendError> {
+        match self.updates.try_recv() {
+            Ok(r) => {
+                self.pending = self.pending.saturating_sub(1);
+                r.map(Some)
+            }
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(self.death()),
+        }
+    }
+
+    /// The next update, waiting for it.
+    pub fn recv(&mut self) -> Result<KeyframeUpdate, BackendError> {
+        match self.updates.recv() {
+            Ok(r) => {
+                self.pending = self.pending.saturating_sub(1);
+                r
+            }
+            Err(_) => Err(self.death()),
+        }
+    }
+
+    /// Why the thread is gone: the error it reported, its panic message, or that it
+    /// stopped.
+    fn death(&mut self) -> BackendError {
+        self.requests = None;
+        while let Ok(r) = self.updates.try_recv() {
+            if let Err(e) = r {
+                return e;
+            }
+        }
+        match self.handle.take().map(JoinHandle::join) {
+            Some(Err(p)) => BackendError::ThreadDied(panic_message(p.as_ref())),
+            _ => BackendError::ThreadDied("it stopped before the run ended".into()),
+        }
+    }
+
+    /// Waits for every pending keyframe, stops the thread and runs the final
+    /// optimization.
+    pub fn finish(mut self) -> Result<Finished, BackendError> {
+        let mut late_updates = Vec::new();
+        while self.pending > 0 {
+            late_updates.push(self.recv()?);
+        }
+        self.requests = None;
+        let mut backend = match self.handle.take().map(JoinHandle::join) {
+            Some(Ok(b)) => b,
+            Some(Err(p)) => return Err(BackendError::ThreadDied(panic_message(p.as_ref()))),
+            None => return Err(BackendError::ThreadDied("already stopped".into())),
+        };
+        let final_solve = backend.finish()?;
+        Ok(Finished {
+            backend,
+            final_solve,
+            late_updates,
+        })
+    }
+}

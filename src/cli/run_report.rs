@@ -1,0 +1,217 @@
+//! The HTML report of `stride run`.
+
+use super::run::RunArgs;
+use crate::pipeline::{BackendSummary, FrameStatus, RunOutput};
+use anyhow::{Context, Result};
+use serde_json::Value;
+use std::path::Path;
+use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
+use stride_eval::report::Report;
+use stride_eval::{AteResult, RpeResult};
+
+fn backend_title(j: &Value) -> &'static str {
+    match j["backend"].as_str() {
+        Some("ba") => "SLAM with bundle adjustment",
+        Some("pose-graph") => "SLAM with a pose graph",
+        _ => "visual odometry",
+    }
+}
+
+/// The map's points and the trajectory from above (x and z of the first camera's frame).
+fn map_chart(out: &RunOutput, b: &BackendSummary) -> Chart {
+    Chart {
+        title: "Map from above".into(),
+        x_label: "x (m)".into(),
+        y_label: "z (m)".into(),
+        series: vec![
+            Series::line(
+                "map points",
+                PALETTE[5],
+                b.points_world.iter().map(|p| (p.x, p.z)).collect(),
+            )
+            .with_style(Style::Markers),
+            Series::line(
+                "trajectory",
+                PALETTE[1],
+                out.frames
+                    .iter()
+                    .map(|f| {
+                        let p = out.final_pose(f).translation.vector;
+                        (p.x, p.z)
+                    })
+                    .collect(),
+            ),
+        ],
+        equal_aspect: true,
+        ..Chart::default()
+    }
+}
+
+pub fn write_html(
+    dir: &Path,
+    a: &RunArgs,
+    j: &Value,
+    out: &RunOutput,
+    at: Option<&AteResult>,
+    rp: Option<&RpeResult>,
+) -> Result<()> {
+    let mut rep = Report::new(format!("stride run: {}", backend_title(j)));
+    rep.paragraph(format!(
+        "Dataset {}; {} frames; seed {}.",
+        a.dataset.display(),
+        out.frames.len(),
+        a.seed
+    ));
+    let g = |k: &str| j.get(k).cloned().unwrap_or(Value::Null).to_string();
+    rep.table(
+        &["quantity", "value"],
+        vec![
+            vec!["frames".into(), g("frames")],
+            vec!["tracked".into(), g("frames_tracked")],
+            vec![
+                "lost (constant-velocity prediction)".into(),
+                g("frames_lost"),
+            ],
+            vec!["skipped (could not load)".into(), g("frames_skipped")],
+            vec!["keyframes".into(), g("keyframes")],
+            vec![
+                "frames/s, whole SLAM (decoding excluded)".into(),
+                format!("{:.1}", j["fps"].as_f64().unwrap_or(f64::NAN)),
+            ],
+            vec![
+                "frames/s, odometry alone".into(),
+                format!("{:.1}", j["odometry_fps"].as_f64().unwrap_or(f64::NAN)),
+            ],
+        ],
+    );
+    if let Some(b) = &out.backend {
+        let ms = |k: &str| format!("{:.2}", j["ba_ms"][k].as_f64().unwrap_or(f64::NAN));
+        rep.table(
+            &["back end", "value"],
+            vec![
+                vec!["mode".into(), g("backend")],
+                vec!["map points (final)".into(), g("map_points")],
+                vec!["keyframes in the map (final)".into(), g("map_keyframes")],
+                vec!["keyframes culled".into(), g("culled_keyframes")],
+                vec!["keyframe step median (ms)".into(), ms("median")],
+                vec!["keyframe step p95 (ms)".into(), ms("p95")],
+                vec!["final optimization (ms)".into(), ms("final")],
+                vec![
+                    "associations by track / by ORB / new points".into(),
+                    format!(
+                        "{} / {} / {}",
+                        j["associations"]["by_track"],
+                        j["associations"]["by_orb"],
+                        j["associations"]["new_points"]
+                    ),
+                ],
+                vec![
+                    "frames the odometry waited for the back end".into(),
+                    j["frontend_waits"]["frames"].to_string(),
+                ],
+            ],
+        );
+        rep.figure(
+            "map",
+            render(&[map_chart(out, b)], 1, 640.0, 480.0),
+            "The final map's points and the trajectory, seen from above the first camera (its x-z plane; y points down).",
+        );
+    }
+    let stages = ["decode", "detect", "track", "ransac", "refine", "total"];
+    rep.table(
+        &["stage", "median (ms)", "p95 (ms)"],
+        stages
+            .iter()
+            .map(|s| {
+                let v = &j["timing_ms"][*s];
+                vec![
+                    (*s).to_owned(),
+                    format!("{:.3}", v["median"].as_f64().unwrap_or(f64::NAN)),
+                    format!("{:.3}", v["p95"].as_f64().unwrap_or(f64::NAN)),
+                ]
+            })
+            .collect(),
+    );
+    if let Some(at) = at {
+        at.add_to_report(&mut rep, "ate");
+    }
+    if let Some(rp) = rp {
+        rp.add_to_report(&mut rep, "rpe");
+    }
+    let t0 = out.frames.first().map_or(0.0, |f| f.t_s);
+    let per_frame = [
+        Chart {
+            title: "Tracking".into(),
+            x_label: "time (s)".into(),
+            y_label: "keypoints".into(),
+            series: vec![
+                Series::line(
+                    "tracked",
+                    PALETTE[0],
+                    out.frames
+                        .iter()
+                        .map(|f| (f.t_s - t0, f.tracked as f64))
+                        .collect(),
+                ),
+                Series::line(
+                    "inliers",
+                    PALETTE[2],
+                    out.frames
+                        .iter()
+                        .map(|f| (f.t_s - t0, f.inliers as f64))
+                        .collect(),
+                ),
+                Series::line(
+                    "lost/skipped",
+                    PALETTE[1],
+                    out.frames
+                        .iter()
+                        .filter(|f| f.status != FrameStatus::Tracked)
+                        .map(|f| (f.t_s - t0, 0.0))
+                        .collect(),
+                )
+                .with_style(Style::Markers),
+            ],
+            y_from_zero: true,
+            ..Chart::default()
+        },
+        Chart {
+            title: "Time per frame".into(),
+            x_label: "time (s)".into(),
+            y_label: "ms".into(),
+            series: vec![
+                Series::line(
+                    "total",
+                    PALETTE[0],
+                    out.frames
+                        .iter()
+                        .map(|f| (f.t_s - t0, f.timing.total_s * 1e3))
+                        .collect(),
+                ),
+                Series::line(
+                    "track",
+                    PALETTE[2],
+                    out.frames
+                        .iter()
+                        .map(|f| (f.t_s - t0, f.timing.track_s * 1e3))
+                        .collect(),
+                ),
+                Series::line(
+                    "decode (other thread)",
+                    PALETTE[4],
+                    out.frames
+                        .iter()
+                        .map(|f| (f.t_s - t0, f.decode_s * 1e3))
+                        .collect(),
+                )
+                .with_style(Style::Dashed),
+            ],
+            y_from_zero: true,
+            ..Chart::default()
+        },
+    ];
+    rep.figure("tracking", render(&per_frame, 2, 560.0, 360.0), "Left: keypoints tracked and RANSAC inliers per frame, failures marked. Right: processing time per frame.");
+    rep.write(dir)
+        .with_context(|| format!("writing the report into {}", dir.display()))?;
+    Ok(())
+}
