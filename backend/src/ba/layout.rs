@@ -62,8 +62,31 @@ pub(crate) struct Layout {
     pub(crate) point_ranges: Vec<std::ops::Range<usize>>,
     /// For each free camera, positions in `edge_order` of its edges, and their points.
     pub(crate) obs_of_cam: Vec<Vec<(usize, usize)>>,
-    /// For each free camera, the pose edges touching it.
-    pub(crate) pose_edges_of_cam: Vec<Vec<usize>>,
+    /// The points split into [`PARTITIONS`] contiguous ranges of about equal work (the
+    /// square of each point's observation count), for sums done in parallel and then
+    /// added in a fixed order.
+    pub(crate) partitions: Vec<std::ops::Range<usize>>,
+}
+
+/// Parallel sums over points use this many partitions, whatever the thread count, so that
+/// their order, and with it the result, never changes.
+pub(crate) const PARTITIONS: usize = 8;
+
+/// Contiguous ranges of `weights.len()` items with about equal total weight.
+fn balanced(weights: &[usize], parts: usize) -> Vec<std::ops::Range<usize>> {
+    let total: usize = weights.iter().sum();
+    let parts = parts.max(1);
+    let mut out = Vec::with_capacity(parts);
+    let (mut start, mut acc) = (0, 0);
+    for (i, w) in weights.iter().enumerate() {
+        acc += w;
+        if acc * parts >= total * (out.len() + 1) && out.len() + 1 < parts {
+            out.push(start..i + 1);
+            start = i + 1;
+        }
+    }
+    out.push(start..weights.len());
+    out
 }
 
 impl Layout {
@@ -119,25 +142,15 @@ impl Layout {
                 }
             }
         }
-        let mut pose_edges_of_cam = vec![Vec::new(); n_cams as usize];
-        for (i, e) in p.pose_edges.iter().enumerate() {
-            for end in [e.from, e.to] {
-                if let Some(Some(c)) = cam_of_pose.get(end) {
-                    if let Some(list) = pose_edges_of_cam.get_mut(*c as usize) {
-                        if list.last() != Some(&i) {
-                            list.push(i);
-                        }
-                    }
-                }
-            }
-        }
+        let weights: Vec<usize> = point_ranges.iter().map(|r| r.len() * r.len() + 1).collect();
+        let partitions = balanced(&weights, PARTITIONS);
         Self {
+            partitions,
             cam_of_pose,
             edge_order,
             point_of_pos,
             point_ranges,
             obs_of_cam,
-            pose_edges_of_cam,
         }
     }
 

@@ -188,6 +188,38 @@ pub fn huber_cost(chi2: f64, delta2: Option<f64>) -> f64 {
 /// A 6x3 block (a camera's rows times a point's columns).
 pub type Mat63 = SMatrix<f64, 6, 3>;
 
+/// `J^T M` for the pose Jacobian `J = [-I, [q]x]` of a pose-point edge (6x3): `[-M;
+/// -[q]x M]` (since `[q]x^T = -[q]x`).
+pub fn pose_jacobian_t_times(q: &Vector3<f64>, m: &Matrix3<f64>) -> Mat63 {
+    let qm = Matrix3::from_columns(&[
+        q.cross(&m.column(0)),
+        q.cross(&m.column(1)),
+        q.cross(&m.column(2)),
+    ]);
+    let mut out = Mat63::zeros();
+    out.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-m));
+    out.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-qm));
+    out
+}
+
+/// `J^T W J` for the pose Jacobian `J = [-I, [q]x]` and a symmetric `W`:
+/// `[[W, -B], [-B^T, -[q]x B]]` with `B = W [q]x`.
+pub fn pose_information(q: &Vector3<f64>, w: &Matrix3<f64>) -> Matrix6<f64> {
+    let b = w * skew(q);
+    let qb = Matrix3::from_columns(&[
+        q.cross(&b.column(0)),
+        q.cross(&b.column(1)),
+        q.cross(&b.column(2)),
+    ]);
+    let mut out = Matrix6::zeros();
+    out.fixed_view_mut::<3, 3>(0, 0).copy_from(w);
+    out.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-b));
+    out.fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&(-b.transpose()));
+    out.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-qb));
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -260,6 +292,18 @@ mod tests {
                 jk.column(c)
             );
         }
+    }
+
+    #[test]
+    fn structured_products_match_the_plain_ones() {
+        let t = pose([0.3, -1.2, 0.8], [0.4, -0.3, 2.0]);
+        let l = linearize_point(&t, &Point3::new(1.0, 0.5, 2.5), &Point3::new(0.0, 0.0, 2.0));
+        let q = l.e + Vector3::new(0.0, 0.0, 2.0);
+        let w = Matrix3::new(4.0, 1.0, 0.5, 1.0, 3.0, -0.2, 0.5, -0.2, 2.0);
+        let plain = l.j_pose.transpose() * w * l.j_pose;
+        assert!((pose_information(&q, &w) - plain).norm() < 1e-12);
+        let m = Matrix3::new(1.0, 2.0, 3.0, -1.0, 0.5, 0.0, 2.0, 1.0, -3.0);
+        assert!((pose_jacobian_t_times(&q, &m) - l.j_pose.transpose() * m).norm() < 1e-12);
     }
 
     #[test]

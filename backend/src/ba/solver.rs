@@ -12,12 +12,11 @@
 
 use super::layout::{Layout, Vars};
 use super::problem::{
-    huber_cost, huber_weight, linearize_point, linearize_pose, point_error, pose_error, Mat63,
-    Problem,
+    huber_cost, huber_weight, linearize_point, linearize_pose, point_error, pose_error,
+    pose_information, pose_jacobian_t_times, Mat63, Problem,
 };
 use super::reduced::{BlockPattern, ReducedSystem};
 use crate::error::BackendError;
-use crate::se3::skew;
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -131,38 +130,6 @@ fn total_cost(p: &Problem, x: &Vars, layout: &Layout, opts: &SolverOptions) -> O
     cost.is_finite().then_some(cost)
 }
 
-/// `J^T M` for the pose Jacobian `J = [-I, [q]x]` of a pose-point edge (6x3): `[-M;
-/// -[q]x M]` (since `[q]x^T = -[q]x`).
-fn pose_jacobian_t_times(q: &Vector3<f64>, m: &Matrix3<f64>) -> Mat63 {
-    let qm = Matrix3::from_columns(&[
-        q.cross(&m.column(0)),
-        q.cross(&m.column(1)),
-        q.cross(&m.column(2)),
-    ]);
-    let mut out = Mat63::zeros();
-    out.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-m));
-    out.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-qm));
-    out
-}
-
-/// `J^T W J` for the pose Jacobian `J = [-I, [q]x]` and a symmetric `W`:
-/// `[[W, -B], [-B^T, -[q]x B]]` with `B = W [q]x`.
-fn pose_information(q: &Vector3<f64>, w: &Matrix3<f64>) -> Matrix6<f64> {
-    let b = w * skew(q);
-    let qb = Matrix3::from_columns(&[
-        q.cross(&b.column(0)),
-        q.cross(&b.column(1)),
-        q.cross(&b.column(2)),
-    ]);
-    let mut out = Matrix6::zeros();
-    out.fixed_view_mut::<3, 3>(0, 0).copy_from(w);
-    out.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-b));
-    out.fixed_view_mut::<3, 3>(3, 0)
-        .copy_from(&(-b.transpose()));
-    out.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-qb));
-    out
-}
-
 /// Marquardt's scaling of a diagonal entry, kept within a sane range.
 fn damp(d: f64) -> f64 {
     d.clamp(1e-6, 1e32)
@@ -197,21 +164,23 @@ pub fn solve(problem: &mut Problem, opts: &SolverOptions) -> Result<SolveReport,
     let mut system = ReducedSystem::new(layout.pattern(problem))?;
     let mut lambda = opts.initial_lambda;
     let mut nu = 2.0;
-    let mut lin: Option<Linearization> = None;
+    let mut lin = Linearization::new(problem, &x, &layout, opts);
+    let mut damped = Damped::default();
+    let mut stale = false;
     report.termination = Termination::MaxIterations;
     while report.iterations < opts.max_iterations {
         report.iterations += 1;
-        let l = match lin.take() {
-            Some(l) => l,
-            None => Linearization::new(problem, &x, &layout, opts),
-        };
-        let outcome =
-            l.step(problem, &layout, &mut system, lambda)
-                .and_then(|(dc, dp, predicted)| {
-                    let candidate = x.stepped(&layout, &dc, &dp)?;
-                    let new_cost = total_cost(problem, &candidate, &layout, opts)?;
-                    Some((candidate, new_cost, predicted))
-                });
+        if stale {
+            lin.update(problem, &x, &layout, opts);
+            stale = false;
+        }
+        let outcome = lin
+            .step(problem, &layout, &mut system, &mut damped, lambda)
+            .and_then(|(dc, dp, predicted)| {
+                let candidate = x.stepped(&layout, &dc, &dp)?;
+                let new_cost = total_cost(problem, &candidate, &layout, opts)?;
+                Some((candidate, new_cost, predicted))
+            });
         match outcome {
             Some((candidate, new_cost, predicted)) if new_cost < cost => {
                 let rho = (cost - new_cost) / predicted.max(f64::MIN_POSITIVE);
@@ -221,6 +190,7 @@ pub fn solve(problem: &mut Problem, opts: &SolverOptions) -> Result<SolveReport,
                 report.accepted += 1;
                 lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
                 nu = 2.0;
+                stale = true;
                 if relative < opts.function_tolerance {
                     report.termination = Termination::Converged;
                     break;
@@ -230,7 +200,6 @@ pub fn solve(problem: &mut Problem, opts: &SolverOptions) -> Result<SolveReport,
                 report.rejected += 1;
                 lambda *= nu;
                 nu *= 2.0;
-                lin = Some(l);
                 if lambda > 1e16 {
                     report.termination = Termination::NoProgress;
                     break;
@@ -249,6 +218,9 @@ pub fn solve(problem: &mut Problem, opts: &SolverOptions) -> Result<SolveReport,
     Ok(report)
 }
 
+/// Per-camera 6x6 blocks and 6-vectors summed over one partition of the points.
+type CameraSums = (Vec<Matrix6<f64>>, Vec<Vector6<f64>>);
+
 /// One pose-pose edge, linearized: error, Jacobians of its two ends, weighted information.
 #[derive(Debug, Clone, Copy, Default)]
 struct PoseEdgeLin {
@@ -259,7 +231,8 @@ struct PoseEdgeLin {
 }
 
 /// The points' part at one damping: per point `V^-1` and `V^-1 g_p`, per observation
-/// `Y = W V^-1`.
+/// `Y = W V^-1`. Kept between iterations to reuse its buffers.
+#[derive(Default)]
 struct Damped {
     per_point: Vec<(Matrix3<f64>, Vector3<f64>)>,
     ys: Vec<Mat63>,
@@ -280,49 +253,65 @@ struct Linearization {
 }
 
 impl Linearization {
+    /// Buffers sized for `layout`, filled at `x`.
     fn new(p: &Problem, x: &Vars, layout: &Layout, opts: &SolverOptions) -> Self {
-        let obs: Vec<ObsLin> = layout
-            .edge_order
-            .par_iter()
+        let mut l = Self {
+            obs: vec![ObsLin::default(); layout.edge_order.len()],
+            v: vec![Matrix3::zeros(); layout.point_ranges.len()],
+            gp: vec![Vector3::zeros(); layout.point_ranges.len()],
+            u: Vec::new(),
+            gc: Vec::new(),
+            pose: Vec::new(),
+        };
+        l.update(p, x, layout, opts);
+        l
+    }
+
+    /// Linearizes every edge at `x`, reusing the buffers (fresh megabytes per iteration
+    /// cost more in page faults than the arithmetic, and do not parallelize).
+    fn update(&mut self, p: &Problem, x: &Vars, layout: &Layout, opts: &SolverOptions) {
+        self.obs
+            .par_iter_mut()
+            .zip(layout.edge_order.par_iter())
             .with_min_len(64)
-            .map(|&i| {
+            .for_each(|(out, &i)| {
+                *out = ObsLin::default();
                 let e = p.point_edges.get(i);
                 let (Some(e), Some(pose), Some(pt)) = (
                     e,
                     e.and_then(|e| x.poses.get(e.pose)),
                     e.and_then(|e| x.points.get(e.point)),
                 ) else {
-                    return ObsLin::default();
+                    return;
                 };
                 let l = linearize_point(pose, pt, &e.p_camera);
                 let chi2 = l.e.dot(&(e.information * l.e));
                 let wom = e.information * huber_weight(chi2, opts.point_huber_chi2);
                 let q = l.e + e.p_camera.coords;
-                ObsLin {
+                *out = ObsLin {
                     cam: layout.cam(e.pose),
                     e: l.e,
                     q,
                     jp: l.j_point,
                     wom,
                     w: pose_jacobian_t_times(&q, &(wom * l.j_point)),
-                }
-            })
-            .collect();
-        let (v, gp): (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) = layout
-            .point_ranges
-            .par_iter()
+                };
+            });
+        let obs = &self.obs;
+        self.v
+            .par_iter_mut()
+            .zip(self.gp.par_iter_mut())
+            .zip(layout.point_ranges.par_iter())
             .with_min_len(32)
-            .map(|r| {
-                let mut v = Matrix3::zeros();
-                let mut g = Vector3::zeros();
+            .for_each(|((v, g), r)| {
+                *v = Matrix3::zeros();
+                *g = Vector3::zeros();
                 for o in obs.get(r.clone()).unwrap_or(&[]) {
                     let jtw = o.jp.transpose() * o.wom;
-                    v += jtw * o.jp;
-                    g += jtw * o.e;
+                    *v += jtw * o.jp;
+                    *g += jtw * o.e;
                 }
-                (v, g)
-            })
-            .unzip();
+            });
         let pose: Vec<PoseEdgeLin> = p
             .pose_edges
             .iter()
@@ -340,39 +329,54 @@ impl Linearization {
                 }
             })
             .collect();
-        let (u, gc): (Vec<_>, Vec<_>) = (0..layout.obs_of_cam.len())
-            .into_par_iter()
-            .map(|c| {
-                let mut u = Matrix6::zeros();
-                let mut g = Vector6::zeros();
-                for &(pos, _) in &layout.obs_of_cam[c] {
-                    if let Some(o) = obs.get(pos) {
-                        u += pose_information(&o.q, &o.wom);
-                        g += pose_jacobian_t_times(&o.q, &o.wom) * o.e;
-                    }
-                }
-                for &k in &layout.pose_edges_of_cam[c] {
-                    let (Some(e), Some(l)) = (p.pose_edges.get(k), pose.get(k)) else {
+        // U and g_c: each partition of the points sums its observations' terms per camera,
+        // then the partitions are added in order (a fixed order: bit-identical results).
+        let n_cams = layout.obs_of_cam.len();
+        let partial: Vec<CameraSums> = layout
+            .partitions
+            .par_iter()
+            .map(|range| {
+                let mut u = vec![Matrix6::zeros(); n_cams];
+                let mut g = vec![Vector6::zeros(); n_cams];
+                let edges = layout.point_ranges.get(range.clone()).unwrap_or(&[]);
+                let (Some(first), Some(last)) = (edges.first(), edges.last()) else {
+                    return (u, g);
+                };
+                for o in obs.get(first.start..last.end).unwrap_or(&[]) {
+                    let Some(c) = o.cam.map(|c| c as usize) else {
                         continue;
                     };
-                    for (end, j) in [(e.from, &l.j_from), (e.to, &l.j_to)] {
-                        if layout.cam(end) == Some(c as u32) {
-                            u += j.transpose() * l.wom * j;
-                            g += j.transpose() * l.wom * l.e;
-                        }
+                    if let (Some(uc), Some(gc)) = (u.get_mut(c), g.get_mut(c)) {
+                        *uc += pose_information(&o.q, &o.wom);
+                        *gc += pose_jacobian_t_times(&o.q, &o.wom) * o.e;
                     }
                 }
                 (u, g)
             })
-            .unzip();
-        Self {
-            obs,
-            v,
-            gp,
-            u,
-            gc,
-            pose,
+            .collect();
+        let mut u = vec![Matrix6::zeros(); n_cams];
+        let mut gc = vec![Vector6::zeros(); n_cams];
+        for (pu, pg) in &partial {
+            for (a, b) in u.iter_mut().zip(pu) {
+                *a += b;
+            }
+            for (a, b) in gc.iter_mut().zip(pg) {
+                *a += b;
+            }
         }
+        for (e, l) in p.pose_edges.iter().zip(&pose) {
+            for (end, j) in [(e.from, &l.j_from), (e.to, &l.j_to)] {
+                if let Some(c) = layout.cam(end).map(|c| c as usize) {
+                    if let (Some(uc), Some(g)) = (u.get_mut(c), gc.get_mut(c)) {
+                        *uc += j.transpose() * l.wom * j;
+                        *g += j.transpose() * l.wom * l.e;
+                    }
+                }
+            }
+        }
+        self.u = u;
+        self.gc = gc;
+        self.pose = pose;
     }
 
     /// The linearized edges of a point's range.
@@ -388,47 +392,40 @@ impl Linearization {
         p: &Problem,
         layout: &Layout,
         system: &mut ReducedSystem,
+        damped: &mut Damped,
         lambda: f64,
     ) -> Option<(Vec<Vector6<f64>>, Vec<Vector3<f64>>, f64)> {
         // Points: damped inverse; then Y = W V^-1 per observation.
-        let per_point: Vec<(Matrix3<f64>, Vector3<f64>)> = self
-            .v
-            .par_iter()
-            .zip(&self.gp)
+        damped
+            .per_point
+            .resize(self.v.len(), (Matrix3::zeros(), Vector3::zeros()));
+        damped
+            .per_point
+            .par_iter_mut()
+            .zip(self.v.par_iter().zip(&self.gp))
             .with_min_len(32)
-            .map(|(v, g)| {
+            .for_each(|(out, (v, g))| {
                 let mut v = *v;
                 for d in 0..3 {
                     v[(d, d)] += lambda * damp(v[(d, d)]);
                 }
                 let vinv = v.try_inverse().unwrap_or_else(Matrix3::zeros);
-                (vinv, vinv * g)
-            })
-            .collect();
-        let ys: Vec<Mat63> = self
-            .obs
-            .par_iter()
-            .zip(&layout.point_of_pos)
+                *out = (vinv, vinv * g);
+            });
+        damped.ys.resize(self.obs.len(), Mat63::zeros());
+        let per_point = &damped.per_point;
+        damped
+            .ys
+            .par_iter_mut()
+            .zip(self.obs.par_iter().zip(&layout.point_of_pos))
             .with_min_len(64)
-            .map(|(o, &j)| {
-                per_point
+            .for_each(|(y, (o, &j))| {
+                *y = per_point
                     .get(j)
-                    .map_or_else(Mat63::zeros, |(vinv, _)| o.w * vinv)
-            })
-            .collect();
-        let damped = Damped { per_point, ys };
-        // Reduced system, column by column.
-        let columns: Vec<(Vec<Matrix6<f64>>, Vector6<f64>)> = (0..layout.obs_of_cam.len())
-            .into_par_iter()
-            .map(|b| self.column(p, layout, system.pattern(), &damped, b, lambda))
-            .collect();
-        let per_point = damped.per_point;
-        let mut blocks = Vec::with_capacity(system.pattern().blocks());
-        let mut rhs = Vec::with_capacity(columns.len());
-        for (c, r) in columns {
-            blocks.extend(c);
-            rhs.push(r);
-        }
+                    .map_or_else(Mat63::zeros, |(vinv, _)| o.w * vinv);
+            });
+        let (blocks, rhs) = self.reduced(p, layout, system.pattern(), damped, lambda);
+        let per_point = &damped.per_point;
         let dc = system.solve(&blocks, &rhs)?;
         // Back-substitution and the predicted decrease -g.d + lambda d^T D d.
         let dp_pred: Vec<(Vector3<f64>, f64)> = layout
@@ -469,67 +466,88 @@ impl Linearization {
         Some((dc, dp, predicted))
     }
 
-    /// Block column `b` of the reduced system (blocks in pattern order) and its right-hand
-    /// side.
-    fn column(
+    /// The reduced system's blocks (in pattern order) and right-hand side at damping
+    /// `lambda`. The points' part is summed per partition of the points in parallel, then
+    /// the partitions are added in order; the cameras' own terms and the pose edges after.
+    fn reduced(
         &self,
         p: &Problem,
         layout: &Layout,
         pattern: &BlockPattern,
         damped: &Damped,
-        b: usize,
         lambda: f64,
-    ) -> (Vec<Matrix6<f64>>, Vector6<f64>) {
-        let (rows, first_slot) = pattern.column(b);
-        let mut blocks = vec![Matrix6::zeros(); rows.len()];
-        let mut u = self.u.get(b).copied().unwrap_or_else(Matrix6::zeros);
-        for d in 0..6 {
-            u[(d, d)] += lambda * damp(u[(d, d)]);
-        }
-        if let Some(first) = blocks.first_mut() {
-            *first = u;
-        }
-        let mut rhs = -self.gc.get(b).copied().unwrap_or_else(Vector6::zeros);
-        let slot_of = |a: usize| pattern.slot(a, b).and_then(|s| s.checked_sub(first_slot));
-        for &(pos, j) in &layout.obs_of_cam[b] {
-            let (Some(o_b), Some((_, om)), Some(r)) = (
-                self.obs.get(pos),
-                damped.per_point.get(j),
-                layout.point_ranges.get(j),
-            ) else {
-                continue;
-            };
-            rhs += o_b.w * om;
-            let ys_j = damped.ys.get(r.clone()).unwrap_or(&[]);
-            for (o_a, y) in self.obs_of(r).iter().zip(ys_j) {
-                let Some(a) = o_a.cam.map(|c| c as usize).filter(|&a| a >= b) else {
-                    continue;
-                };
-                let Some(s) = slot_of(a) else {
-                    continue;
-                };
-                if let Some(blk) = blocks.get_mut(s) {
-                    *blk -= y * o_b.w.transpose();
+    ) -> (Vec<Matrix6<f64>>, Vec<Vector6<f64>>) {
+        let n_cams = layout.obs_of_cam.len();
+        let partial: Vec<CameraSums> = layout
+            .partitions
+            .par_iter()
+            .map(|range| {
+                let mut blocks = vec![Matrix6::zeros(); pattern.blocks()];
+                let mut rhs = vec![Vector6::zeros(); n_cams];
+                for j in range.clone() {
+                    let (Some(r), Some((_, om))) =
+                        (layout.point_ranges.get(j), damped.per_point.get(j))
+                    else {
+                        continue;
+                    };
+                    let obs = self.obs_of(r);
+                    let ys = damped.ys.get(r.clone()).unwrap_or(&[]);
+                    for o_b in obs {
+                        let Some(b) = o_b.cam.map(|c| c as usize) else {
+                            continue;
+                        };
+                        if let Some(rb) = rhs.get_mut(b) {
+                            *rb += o_b.w * om;
+                        }
+                        let wt = o_b.w.transpose();
+                        for (o_a, y) in obs.iter().zip(ys) {
+                            let Some(a) = o_a.cam.map(|c| c as usize).filter(|&a| a >= b) else {
+                                continue;
+                            };
+                            if let Some(blk) = pattern.slot(a, b).and_then(|s| blocks.get_mut(s)) {
+                                *blk -= y * wt;
+                            }
+                        }
+                    }
                 }
+                (blocks, rhs)
+            })
+            .collect();
+        let mut blocks = vec![Matrix6::zeros(); pattern.blocks()];
+        let mut rhs: Vec<Vector6<f64>> = self.gc.iter().map(|g| -g).collect();
+        rhs.resize(n_cams, Vector6::zeros());
+        for (pb, pr) in &partial {
+            for (a, b) in blocks.iter_mut().zip(pb) {
+                *a += b;
+            }
+            for (a, b) in rhs.iter_mut().zip(pr) {
+                *a += b;
             }
         }
-        for &k in &layout.pose_edges_of_cam[b] {
-            let (Some(e), Some(l)) = (p.pose_edges.get(k), self.pose.get(k)) else {
+        for (b, u) in self.u.iter().enumerate() {
+            let mut u = *u;
+            for d in 0..6 {
+                u[(d, d)] += lambda * damp(u[(d, d)]);
+            }
+            if let Some(blk) = pattern.slot(b, b).and_then(|s| blocks.get_mut(s)) {
+                *blk += u;
+            }
+        }
+        // The cross block between a pose edge's two free ends, stored under the lower one.
+        for (e, l) in p.pose_edges.iter().zip(&self.pose) {
+            let (Some(ca), Some(cb)) = (layout.cam(e.from), layout.cam(e.to)) else {
                 continue;
             };
-            let (ca, cb) = (layout.cam(e.from), layout.cam(e.to));
-            // The cross block between the edge's two free ends, stored under the lower one.
-            if let (Some(ca), Some(cb)) = (ca, cb) {
-                let (ca, cb) = (ca as usize, cb as usize);
-                if ca > cb && cb == b {
-                    if let Some(blk) = slot_of(ca).and_then(|s| blocks.get_mut(s)) {
-                        *blk += l.j_from.transpose() * l.wom * l.j_to;
-                    }
-                } else if cb > ca && ca == b {
-                    if let Some(blk) = slot_of(cb).and_then(|s| blocks.get_mut(s)) {
-                        *blk += l.j_to.transpose() * l.wom * l.j_from;
-                    }
-                }
+            let (ca, cb) = (ca as usize, cb as usize);
+            let (slot, blk) = if ca > cb {
+                (pattern.slot(ca, cb), l.j_from.transpose() * l.wom * l.j_to)
+            } else if cb > ca {
+                (pattern.slot(cb, ca), l.j_to.transpose() * l.wom * l.j_from)
+            } else {
+                continue;
+            };
+            if let Some(b) = slot.and_then(|s| blocks.get_mut(s)) {
+                *b += blk;
             }
         }
         (blocks, rhs)

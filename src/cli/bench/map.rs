@@ -1,0 +1,155 @@
+//! `stride bench map`: elevation-map update time per depth frame, ours and the baseline.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use serde_json::json;
+use std::path::PathBuf;
+
+#[derive(Debug, Args)]
+pub struct MapBenchArgs {
+    /// Sequence folder with ground-truth poses (TUM layout) [default: a synthetic sequence
+    /// rendered into a temporary folder].
+    #[arg(long)]
+    dataset: Option<PathBuf>,
+    /// Frames mapped (the median update time is reported).
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Which mappers to time.
+    #[arg(long, value_enum, default_value = "both")]
+    mapper: crate::cli::map::MapperArg,
+    /// Time the stack mapper without its depth-edge filter.
+    #[arg(long)]
+    no_edge_filter: bool,
+    /// Time the stack mapper without the visibility check.
+    #[arg(long)]
+    no_visibility: bool,
+    /// Time the stack mapper without the see-through check.
+    #[arg(long)]
+    no_see_through: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn bench_map(a: MapBenchArgs) -> Result<()> {
+    use stride_datasets::tum::{AssociationOptions, TumSequence};
+    use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
+    use stride_mapping::input::{Cloud, SensorFrame};
+    use stride_mapping::stack::{StackConfig, StackMapper};
+    use stride_mapping::ElevationMapper;
+    let tmp = tempfile::tempdir()?;
+    let dir = match &a.dataset {
+        Some(d) => d.clone(),
+        None => {
+            let d = tmp.path().join("seq");
+            let cfg = stride_datasets::synth::SynthConfig {
+                frames: a.frames,
+                blur: false,
+                ..Default::default()
+            };
+            stride_datasets::synth::generate(&cfg, &d, false, &mut |_, _| {})?;
+            d
+        }
+    };
+    let seq = TumSequence::open(&dir, None, AssociationOptions::default())?;
+    let gt = seq
+        .groundtruth
+        .clone()
+        .context("the sequence has no ground truth poses")?;
+    let mut frames = Vec::new();
+    for i in 0..seq.len().min(a.frames) {
+        let f = seq.load_frame(i)?;
+        if let Some(pose) = gt.interpolate(f.t_depth_s) {
+            frames.push((f, pose));
+        }
+    }
+    if frames.is_empty() {
+        bail!("no frame of {} has a ground-truth pose", dir.display());
+    }
+    let valid: f64 = frames
+        .iter()
+        .map(|(f, _)| f.depth_m.as_slice().iter().filter(|&&z| z > 0.0).count() as f64)
+        .sum::<f64>()
+        / frames.len() as f64;
+    use crate::cli::map::MapperArg;
+    let mut mappers: Vec<Box<dyn ElevationMapper>> = Vec::new();
+    if a.mapper != MapperArg::Fankhauser {
+        let d = StackConfig::default();
+        mappers.push(Box::new(StackMapper::new(StackConfig {
+            edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
+            visibility_check: !a.no_visibility,
+            see_through_check: !a.no_see_through,
+            ..d
+        })));
+    }
+    if a.mapper != MapperArg::Stack {
+        mappers.push(Box::new(FankhauserMapper::new(FankhauserConfig::default())));
+    }
+    let mut out = serde_json::Map::new();
+    // The mappers take turns frame by frame, so that both see the same machine state (these
+    // VMs drift by tens of percent within a minute); the ratio of medians is the figure to
+    // trust.
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); mappers.len()];
+    let mut phases: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; mappers.len()];
+    let mut used = vec![0usize; mappers.len()];
+    for (f, pose) in &frames {
+        let sf = SensorFrame {
+            cloud: Cloud::Depth {
+                depth_m: &f.depth_m,
+                camera: &seq.camera.camera,
+            },
+            map_from_sensor: *pose,
+            time_s: f.t_depth_s,
+        };
+        for (((m, t), u), ph) in mappers
+            .iter_mut()
+            .zip(&mut times)
+            .zip(&mut used)
+            .zip(&mut phases)
+        {
+            let s = m.integrate(&sf);
+            t.push(s.update_s);
+            let [p, c] = ph;
+            p.push(s.prepare_s);
+            c.push(s.checks_s);
+            *u += s.points_used;
+        }
+    }
+    for (((m, t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
+        let total: f64 = t.iter().sum();
+        let (med, p95) = crate::pipeline::median_p95(t.iter().copied());
+        let (pm, _) = crate::pipeline::median_p95(p.iter().copied());
+        let (cm, _) = crate::pipeline::median_p95(c.iter().copied());
+        out.insert(
+            m.name().into(),
+            json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total}),
+        );
+    }
+    if a.json {
+        crate::outln!(
+            "{}",
+            json!({"frames": frames.len(), "pixels_per_frame": frames[0].0.depth_m.as_slice().len(), "valid_depth_per_frame": valid, "threads": rayon::current_num_threads(), "mappers": out})
+        )?;
+        return Ok(());
+    }
+    crate::outln!("{} frames of {} ({} pixels, {:.0} with depth on average), 1 cm cells, 4 x 4 m window, {} threads", frames.len(), dir.display(), frames[0].0.depth_m.as_slice().len(), valid, rayon::current_num_threads())?;
+    let g = |k: &str, f: &str| {
+        out.get(k)
+            .and_then(|v| v.get(f))
+            .and_then(|v| v.as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    for k in ["stack", "fankhauser"] {
+        crate::outln!(
+            "{k:<11} update {:>7.2} ms median, {:>7.2} ms p95, {:.2e} points/s",
+            g(k, "update_ms_median"),
+            g(k, "update_ms_p95"),
+            g(k, "points_per_s")
+        )?;
+    }
+    crate::outln!(
+        "fankhauser / stack update time: {:.2}",
+        g("fankhauser", "update_ms_median") / g("stack", "update_ms_median")
+    )?;
+    Ok(())
+}

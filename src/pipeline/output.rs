@@ -1,0 +1,215 @@
+//! What a run produced: a record per frame, the back end's summary, and the final poses.
+
+use anyhow::{Context, Result};
+use nalgebra::Isometry3;
+use stride_backend::{BackendConfig, KeyframeReport};
+use stride_core::trajectory::Trajectory;
+use stride_frontend::StageTimes;
+
+/// How a frame's pose was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameStatus {
+    /// Estimated by the odometry (or the first frame).
+    Tracked,
+    /// The odometry could not estimate it: predicted by constant velocity.
+    Lost,
+    /// The frame could not be loaded: predicted by constant velocity.
+    Skipped,
+}
+
+impl FrameStatus {
+    /// A short lowercase name for reports.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            FrameStatus::Tracked => "tracked",
+            FrameStatus::Lost => "lost",
+            FrameStatus::Skipped => "skipped",
+        }
+    }
+}
+
+/// What happened to one frame of the sequence.
+#[derive(Debug, Clone)]
+pub struct FrameRecord {
+    /// Frame index in the sequence.
+    pub index: usize,
+    /// Timestamp (s).
+    pub t_s: f64,
+    /// `world_from_camera` as it was known at the frame's time (live): the odometry's
+    /// pose moved by the back end's latest correction.
+    pub live_world_from_camera: Isometry3<f64>,
+    /// `world_from_camera` in the odometry's own world (never corrected).
+    pub odometry_world_from_camera: Isometry3<f64>,
+    /// The keyframe the pose is kept relative to, and the pose relative to it.
+    pub keyframe_id: u64,
+    /// `keyframe_from_camera`.
+    pub keyframe_from_camera: Isometry3<f64>,
+    /// How the pose was obtained.
+    pub status: FrameStatus,
+    /// Whether it became a keyframe.
+    pub keyframe: bool,
+    /// Keypoints tracked into it.
+    pub tracked: usize,
+    /// RANSAC inliers.
+    pub inliers: usize,
+    /// Decoding time on the decoder thread (s); NaN for skipped frames.
+    pub decode_s: f64,
+    /// Odometry stage times (s).
+    pub timing: StageTimes,
+    /// Time the odometry waited for the back end before this frame (s).
+    pub wait_s: f64,
+    /// Why it was skipped, when it was.
+    pub skip_reason: Option<String>,
+}
+
+/// The back end's part of a run.
+pub struct BackendSummary {
+    /// The configuration used.
+    pub config: BackendConfig,
+    /// One report per keyframe, in order.
+    pub keyframes: Vec<KeyframeReport>,
+    /// The final optimization.
+    pub final_solve: Option<stride_backend::ba::SolveReport>,
+    /// Keyframes and points in the final map.
+    pub map_keyframes: usize,
+    /// See `map_keyframes`.
+    pub map_points: usize,
+    /// Keyframes culled over the run.
+    pub culled_keyframes: usize,
+    /// The final map's points (world frame, m), for plots.
+    pub points_world: Vec<nalgebra::Point3<f64>>,
+    /// Final `world_from_camera` of every keyframe ever made, by identifier.
+    pub keyframe_poses: Vec<(u64, Isometry3<f64>)>,
+}
+
+impl BackendSummary {
+    /// The final poses of the keyframes, at their frames' times.
+    pub fn keyframe_trajectory(&self, out: &RunOutput) -> Trajectory {
+        let mut t = Trajectory::new();
+        for f in out.frames.iter().filter(|f| f.keyframe) {
+            if let Ok(i) = self
+                .keyframe_poses
+                .binary_search_by_key(&f.keyframe_id, |(k, _)| *k)
+            {
+                if let Some((_, pose)) = self.keyframe_poses.get(i) {
+                    // Frames are in time order and keyframes among them: pushing cannot fail.
+                    let _ = t.push(f.t_s, *pose);
+                }
+            }
+        }
+        t
+    }
+}
+
+/// The outcome of a run.
+pub struct RunOutput {
+    /// Every frame, in order.
+    pub frames: Vec<FrameRecord>,
+    /// Wall time of the odometry only (s): decoding and waits for the back end excluded.
+    pub vo_wall_s: f64,
+    /// Wall time of the whole run on this thread, decoding excluded (s): odometry, waits,
+    /// and the final optimization.
+    pub wall_s: f64,
+    /// The back end's part, when there was one.
+    pub backend: Option<BackendSummary>,
+}
+
+impl RunOutput {
+    /// The final `world_from_camera` of every frame (the live poses without a back end).
+    ///
+    /// A frame between keyframes `A` and `B` has two estimates, each keyframe's final pose
+    /// times the frame's odometry pose relative to it; the frame takes their average,
+    /// weighted by its time between the two (all of `A`'s at `A`). A keyframe the odometry
+    /// placed poorly then spoils only half of its neighbours' poses instead of all of them.
+    pub fn final_poses(&self) -> Vec<Isometry3<f64>> {
+        let Some(b) = &self.backend else {
+            return self
+                .frames
+                .iter()
+                .map(|f| f.live_world_from_camera)
+                .collect();
+        };
+        let pose_of = |id: u64| {
+            b.keyframe_poses
+                .binary_search_by_key(&id, |(k, _)| *k)
+                .ok()
+                .and_then(|i| b.keyframe_poses.get(i))
+                .map(|(_, p)| *p)
+        };
+        // Each keyframe's record, and for each frame the next keyframe's record.
+        let mut next_kf: Vec<Option<&FrameRecord>> = vec![None; self.frames.len()];
+        let mut next = None;
+        for (i, f) in self.frames.iter().enumerate().rev() {
+            next_kf[i] = next;
+            if f.keyframe {
+                next = Some(f);
+            }
+        }
+        let kf_record: std::collections::HashMap<u64, &FrameRecord> = self
+            .frames
+            .iter()
+            .filter(|f| f.keyframe)
+            .map(|f| (f.keyframe_id, f))
+            .collect();
+        self.frames
+            .iter()
+            .zip(next_kf)
+            .map(|(f, nk)| {
+                let Some(world_from_a) = pose_of(f.keyframe_id) else {
+                    return f.live_world_from_camera;
+                };
+                let from_a = world_from_a * f.keyframe_from_camera;
+                let (Some(kb), Some(ka)) = (nk, kf_record.get(&f.keyframe_id)) else {
+                    return from_a;
+                };
+                let Some(world_from_b) = pose_of(kb.keyframe_id) else {
+                    return from_a;
+                };
+                let b_from_f =
+                    kb.odometry_world_from_camera.inverse() * f.odometry_world_from_camera;
+                let from_b = world_from_b * b_from_f;
+                let span = kb.t_s - ka.t_s;
+                let alpha = if span > 0.0 {
+                    ((f.t_s - ka.t_s) / span).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                from_a.lerp_slerp(&from_b, alpha)
+            })
+            .collect()
+    }
+
+    /// The final `world_from_camera` of one frame (see [`RunOutput::final_poses`]).
+    pub fn final_pose(&self, f: &FrameRecord) -> Isometry3<f64> {
+        self.frames
+            .iter()
+            .position(|g| std::ptr::eq(g, f))
+            .and_then(|i| self.final_poses().get(i).copied())
+            .unwrap_or(f.live_world_from_camera)
+    }
+
+    /// The estimated trajectory (every frame, final poses).
+    pub fn trajectory(&self) -> Result<Trajectory> {
+        let poses = self.final_poses();
+        let mut t = Trajectory::new();
+        for (f, p) in self.frames.iter().zip(poses) {
+            t.push(f.t_s, p)
+                .with_context(|| format!("frame {} at {:.6} s", f.index, f.t_s))?;
+        }
+        Ok(t)
+    }
+
+    /// The trajectory as it was known frame by frame (live poses).
+    pub fn live_trajectory(&self) -> Result<Trajectory> {
+        self.trajectory_with(|f| f.live_world_from_camera)
+    }
+
+    fn trajectory_with(&self, pose: impl Fn(&FrameRecord) -> Isometry3<f64>) -> Result<Trajectory> {
+        let mut t = Trajectory::new();
+        for f in &self.frames {
+            t.push(f.t_s, pose(f))
+                .with_context(|| format!("frame {} at {:.6} s", f.index, f.t_s))?;
+        }
+        Ok(t)
+    }
+}
