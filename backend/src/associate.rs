@@ -5,27 +5,19 @@ use crate::backend::Backend;
 use crate::map::{KeyframeId, MapPoint, PointId};
 use crate::matching::match_points;
 use nalgebra::Matrix6;
-use std::collections::{BTreeSet, HashMap};
+use std::collections::BTreeSet;
 
 impl Backend {
-    /// Associates features whose track already has a map point (through the previous
-    /// keyframe, which describes every live track), each pair gated by its 3-D Mahalanobis
-    /// distance under the predicted pose. Returns the associations and the pose's
-    /// covariance.
+    /// Associates features whose track already has a map point (the tracks of the previous
+    /// keyframe, which saw every track the odometry still follows), each pair gated by its
+    /// 3-D Mahalanobis distance under the predicted pose. Returns the associations and the
+    /// pose's covariance.
     pub(crate) fn associate_tracks(
         &mut self,
         id: KeyframeId,
-        previous: Option<KeyframeId>,
         pose_cov: Matrix6<f64>,
     ) -> (usize, Matrix6<f64>) {
-        let Some(prev) = previous.and_then(|p| self.map.keyframe(p)) else {
-            return (0, pose_cov);
-        };
-        let by_track: HashMap<u64, PointId> = prev
-            .features
-            .iter()
-            .filter_map(|f| Some((f.track_id, f.point?)))
-            .collect();
+        let by_track = &self.tracks;
         let Some(kf) = self.map.keyframe(id) else {
             return (0, pose_cov);
         };
@@ -122,16 +114,21 @@ impl Backend {
         set
     }
 
-    /// ORB matching of the unassociated features of keyframe `id` against the local map.
+    /// ORB matching of the features of keyframe `id` against the local map's points that
+    /// it does not see yet. A feature without a point takes the one it matches; a feature
+    /// whose track already has a point that turns out to be a duplicate of the matched one
+    /// (the same physical point, mapped twice because it was not recognised when its track
+    /// began) has the two fused, keeping the one seen by more keyframes. Returns the new
+    /// associations and the fusions.
     pub(crate) fn match_local_map(
         &mut self,
         id: KeyframeId,
         previous: Option<KeyframeId>,
         pose_cov: &Matrix6<f64>,
-    ) -> usize {
+    ) -> (usize, usize) {
         let local = self.local_map(id, previous);
         let Some(kf) = self.map.keyframe(id) else {
-            return 0;
+            return (0, 0);
         };
         let seen: BTreeSet<PointId> = kf.points().collect();
         let mut cand_ids: BTreeSet<PointId> = BTreeSet::new();
@@ -148,7 +145,7 @@ impl Backend {
             .features
             .iter()
             .enumerate()
-            .filter(|(_, f)| f.point.is_none() && f.measurement.is_some() && f.descriptor.is_some())
+            .filter(|(_, f)| f.measurement.is_some() && f.descriptor.is_some())
             .map(|(i, _)| i)
             .collect();
         let (matches, visible) = match_points(
@@ -165,7 +162,33 @@ impl Backend {
                 mp.visible += 1;
             }
         }
-        let pairs: Vec<(usize, PointId)> = matches.iter().map(|m| (m.feature, m.point)).collect();
-        self.observe(id, &pairs, true)
+        let mut pairs = Vec::new();
+        let mut fused = 0;
+        for m in &matches {
+            let current = self
+                .map
+                .keyframe(id)
+                .and_then(|kf| kf.features.get(m.feature))
+                .and_then(|f| f.point);
+            match current {
+                None => pairs.push((m.feature, m.point)),
+                Some(p) if p != m.point => {
+                    let count = |q| self.map.point(q).map_or(0, |mp| mp.observations.len());
+                    let (keep, drop) = if (count(m.point), std::cmp::Reverse(m.point))
+                        >= (count(p), std::cmp::Reverse(p))
+                    {
+                        (m.point, p)
+                    } else {
+                        (p, m.point)
+                    };
+                    if self.map.point(keep).is_some() && self.map.point(drop).is_some() {
+                        self.map.merge_points(keep, drop);
+                        fused += 1;
+                    }
+                }
+                Some(_) => {}
+            }
+        }
+        (self.observe(id, &pairs, true), fused)
     }
 }

@@ -11,11 +11,12 @@
 use crate::ba::{solve, SolveReport, SolverOptions};
 use crate::config::{BackendConfig, BackendMode};
 use crate::error::BackendError;
+use crate::map::PointId;
 use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
 use crate::se3::{is_finite, left_from_right};
 use crate::window::{build, local_window, KeyframeEdge, MapProblem};
 use nalgebra::{Isometry3, Matrix6, Vector6};
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_frontend::KeyframeInfo;
@@ -42,6 +43,8 @@ pub struct KeyframeReport {
     pub by_track: usize,
     /// Features associated with map points by ORB matching.
     pub by_orb: usize,
+    /// Duplicated points fused (a track's point found to be an older map point).
+    pub fused: usize,
     /// New map points.
     pub new_points: usize,
     /// Whether the odometry link joined the optimization (too few re-observations).
@@ -89,6 +92,10 @@ pub struct Backend {
     pub(crate) newest: Option<KeyframeId>,
     /// Pose-graph mode: relative motions measured between keyframes.
     pub(crate) pose_edges: Vec<KeyframeEdge>,
+    /// The map point of each track the latest keyframe saw (every track the odometry still
+    /// follows was in it), kept apart from the map so that the latest keyframe can be
+    /// culled.
+    pub(crate) tracks: HashMap<u64, PointId>,
 }
 
 /// The information of a frontend pose estimate, moved into the optimizer's tangent space;
@@ -128,6 +135,7 @@ impl Backend {
             first: None,
             newest: None,
             pose_edges: Vec::new(),
+            tracks: HashMap::new(),
         })
     }
 
@@ -155,9 +163,15 @@ impl Backend {
             .and_then(|l| Some(self.map.pose_of(l.previous_id)? * l.previous_from_this))
             .filter(is_finite)
             .unwrap_or(input.world_from_camera);
-        let odometry = link.map(|l| OdometryEdge {
-            previous: l.previous_id,
-            previous_from_this: l.previous_from_this,
+        // The previous keyframe may have been culled: link to the keyframe it is kept
+        // relative to.
+        let odometry = link.and_then(|l| {
+            let (previous, live_from_previous) = self.map.live_ancestor(l.previous_id)?;
+            Some((l, previous, live_from_previous * l.previous_from_this))
+        });
+        let odometry = odometry.map(|(l, previous, previous_from_this)| OdometryEdge {
+            previous,
+            previous_from_this,
             information: odometry_information(
                 &input.world_from_camera,
                 &l.information,
@@ -192,13 +206,17 @@ impl Backend {
         if !self.map.insert_keyframe(kf) {
             return Err(bad("a keyframe with this identifier exists".into()));
         }
-        let previous = self.newest;
+        let previous = self
+            .newest
+            .and_then(|n| self.map.live_ancestor(n))
+            .map(|(k, _)| k);
         self.first.get_or_insert(id);
         self.newest = Some(id);
         let mut report = KeyframeReport {
             keyframe_id: id,
             by_track: 0,
             by_orb: 0,
+            fused: 0,
             new_points: 0,
             odometry_edge: false,
             outliers: 0,
@@ -208,9 +226,9 @@ impl Backend {
             time_s: 0.0,
         };
         // 2. Association: tracks first, then ORB matching against the local map.
-        let (by_track, pose_cov) = self.associate_tracks(id, previous, pose_cov);
+        let (by_track, pose_cov) = self.associate_tracks(id, pose_cov);
         report.by_track = by_track;
-        report.by_orb = self.match_local_map(id, previous, &pose_cov);
+        (report.by_orb, report.fused) = self.match_local_map(id, previous, &pose_cov);
         // 3. New points for what matched nothing.
         let n = self.map.keyframe(id).map_or(0, |k| k.features.len());
         for f in 0..n {
@@ -233,6 +251,12 @@ impl Backend {
         let (solve_report, outliers) = self.optimize(&window, self.config.local_iterations)?;
         report.solve = solve_report;
         report.outliers = outliers;
+        self.tracks = self.map.keyframe(id).map_or_else(HashMap::new, |kf| {
+            kf.features
+                .iter()
+                .filter_map(|f| Some((f.track_id, f.point?)))
+                .collect()
+        });
         report.culled_keyframes = self.cull_keyframes(&window);
         report.culled_points = self.cull_points(id);
         report.time_s = start.elapsed().as_secs_f64();
@@ -313,13 +337,17 @@ impl Backend {
         g
     }
 
-    /// The final optimization of every keyframe and point.
+    /// The final optimization of every keyframe and point (of the newest
+    /// `final_max_keyframes` keyframes on long runs).
     pub fn finish(&mut self) -> Result<Option<SolveReport>, BackendError> {
         let all: Vec<KeyframeId> = self.map.keyframes().keys().copied().collect();
         if all.len() < 2 {
             return Ok(None);
         }
-        let (report, _) = self.optimize(&all, self.config.final_iterations)?;
+        let free = all
+            .get(all.len().saturating_sub(self.config.final_max_keyframes)..)
+            .unwrap_or(&all);
+        let (report, _) = self.optimize(free, self.config.final_iterations)?;
         if let Some(newest) = self.newest {
             self.cull_points(newest);
         }

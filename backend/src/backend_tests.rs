@@ -310,4 +310,39 @@ fn invalid_configurations_are_refused() {
     };
     let err = Backend::new(camera(), bad).err().unwrap().to_string();
     assert!(err.contains("depth_noise_scale"), "{err}");
+    let bad = BackendConfig {
+        final_max_keyframes: 1,
+        ..BackendConfig::default()
+    };
+    let err = Backend::new(camera(), bad).err().unwrap().to_string();
+    assert!(err.contains("final_max_keyframes"), "{err}");
+}
+
+#[test]
+fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
+    let run = synthetic_run(20, 0.004, 2);
+    let config = BackendConfig {
+        final_max_keyframes: 5,
+        ..BackendConfig::default()
+    };
+    let mut backend = Backend::new(camera(), config).unwrap();
+    for input in run.inputs.clone() {
+        backend.add_keyframe(input).unwrap();
+    }
+    let live: Vec<u64> = backend.map().keyframes().keys().copied().collect();
+    let before: Vec<Isometry3<f64>> = live
+        .iter()
+        .map(|&k| backend.map().pose_of(k).unwrap())
+        .collect();
+    backend.finish().unwrap();
+    let moved = |i: usize| {
+        let after = backend.map().pose_of(live[i]).unwrap();
+        (after.inverse() * before[i]).translation.vector.norm()
+    };
+    let n = live.len();
+    assert!(n > 5, "{n} keyframes in the map");
+    for i in 0..n - 5 {
+        assert_eq!(moved(i), 0.0, "keyframe {} is held fixed", live[i]);
+    }
+    assert!((n - 5..n).any(|i| moved(i) > 0.0), "the newest five move");
 }

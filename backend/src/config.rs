@@ -79,6 +79,9 @@ pub struct BackendConfig {
     /// Points seen by fewer than two keyframes are dropped this many keyframes after their
     /// creation.
     pub point_grace_keyframes: u64,
+    /// The final optimization frees at most this many keyframes (the newest); the others
+    /// that see their points are held fixed. Bounds its time and memory on long runs.
+    pub final_max_keyframes: usize,
 }
 
 impl Default for BackendConfig {
@@ -103,6 +106,7 @@ impl Default for BackendConfig {
             redundant_fraction: 0.9,
             redundant_observers: 3,
             point_grace_keyframes: 3,
+            final_max_keyframes: 300,
         }
     }
 }
@@ -126,6 +130,13 @@ impl BackendConfig {
         }
         if self.local_iterations == 0 {
             return bad("local_iterations", "0".into(), ">= 1");
+        }
+        if self.final_max_keyframes < 2 {
+            return bad(
+                "final_max_keyframes",
+                self.final_max_keyframes.to_string(),
+                ">= 2",
+            );
         }
         if !(self.model_noise_m >= 0.0 && self.model_noise_m.is_finite()) {
             return bad(

@@ -33,14 +33,15 @@ impl Backend {
         doomed.len()
     }
 
-    /// Removes the window's redundant keyframes: those (other than the first and the
-    /// newest) with at least `redundant_fraction` of their points seen by
-    /// `redundant_observers` other keyframes. Each keeps its pose relative to the keyframe
-    /// sharing the most points with it. Returns how many were removed.
+    /// Removes the window's redundant keyframes: those (other than the first) with at least
+    /// `redundant_fraction` of their points seen by `redundant_observers` other keyframes.
+    /// The newest is one of them when it adds nothing: a scene seen again does not grow the
+    /// map. Each keeps its pose relative to the keyframe sharing the most points with it.
+    /// Returns how many were removed.
     pub(crate) fn cull_keyframes(&mut self, window: &[KeyframeId]) -> usize {
         let mut removed = 0;
         for &k in window {
-            if Some(k) == self.first || Some(k) == self.newest {
+            if Some(k) == self.first {
                 continue;
             }
             let Some(kf) = self.map.keyframe(k) else {
@@ -61,7 +62,17 @@ impl Backend {
             if total == 0 || (redundant as f64) < self.config.redundant_fraction * total as f64 {
                 continue;
             }
-            let Some(parent) = kf.covisible(1).first().map(|(p, _)| *p) else {
+            // Its pose stays relative to its neighbour in time, not to the keyframe sharing
+            // the most points (which may come from another pass over the place, with drift
+            // of its own that later corrections move differently).
+            let Some(parent) = self
+                .map
+                .keyframes()
+                .range(..k)
+                .next_back()
+                .or_else(|| self.map.keyframes().range(k + 1..).next())
+                .map(|(&p, _)| p)
+            else {
                 continue;
             };
             if self.map.cull_keyframe(k, parent) {

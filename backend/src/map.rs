@@ -415,20 +415,27 @@ impl Map {
         true
     }
 
-    /// The pose of any keyframe ever inserted: a live one's, or a culled one's through its
-    /// chain of parents.
-    pub fn pose_of(&self, id: KeyframeId) -> Option<Isometry3<f64>> {
+    /// The live keyframe a keyframe's pose is kept relative to, and `live_from_this`: the
+    /// keyframe itself (identity) while it lives, its chain of parents once culled.
+    pub fn live_ancestor(&self, id: KeyframeId) -> Option<(KeyframeId, Isometry3<f64>)> {
         let mut id = id;
         let mut from_this = Isometry3::identity();
         for _ in 0..=self.culled.len() {
-            if let Some(kf) = self.keyframes.get(&id) {
-                return Some(kf.world_from_camera * from_this);
+            if self.keyframes.contains_key(&id) {
+                return Some((id, from_this));
             }
             let c = self.culled.get(&id)?;
             from_this = c.parent_from_this * from_this;
             id = c.parent;
         }
         None
+    }
+
+    /// The pose of any keyframe ever inserted: a live one's, or a culled one's through its
+    /// chain of parents.
+    pub fn pose_of(&self, id: KeyframeId) -> Option<Isometry3<f64>> {
+        let (live, live_from_this) = self.live_ancestor(id)?;
+        Some(self.keyframes.get(&live)?.world_from_camera * live_from_this)
     }
 }
 

@@ -90,10 +90,7 @@ impl BackendThread {
     /// The next update if one is ready (never blocks).
     pub fn try_recv(&mut self) -> Result<Option<KeyframeUpdate>, BackendError> {
         match self.updates.try_recv() {
-            Ok(r) => {
-                self.pending = self.pending.saturating_sub(1);
-                r.map(Some)
-            }
+            Ok(r) => self.answered(r).map(Some),
             Err(TryRecvError::Empty) => Ok(None),
             Err(TryRecvError::Disconnected) => Err(self.death()),
         }
@@ -102,12 +99,22 @@ impl BackendThread {
     /// The next update, waiting for it.
     pub fn recv(&mut self) -> Result<KeyframeUpdate, BackendError> {
         match self.updates.recv() {
-            Ok(r) => {
-                self.pending = self.pending.saturating_sub(1);
-                r
-            }
+            Ok(r) => self.answered(r),
             Err(_) => Err(self.death()),
         }
+    }
+
+    /// Books an answer. After an error the thread stops, so later sends fail at once
+    /// instead of racing its exit.
+    fn answered(
+        &mut self,
+        r: Result<KeyframeUpdate, BackendError>,
+    ) -> Result<KeyframeUpdate, BackendError> {
+        self.pending = self.pending.saturating_sub(1);
+        if r.is_err() {
+            self.requests = None;
+        }
+        r
     }
 
     /// Why the thread is gone: the error it reported, its panic message, or that it

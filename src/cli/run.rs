@@ -318,7 +318,7 @@ fn report_json(
         };
         m.insert(
             "associations".into(),
-            json!({"by_track": sum(|k| k.by_track), "by_orb": sum(|k| k.by_orb),
+            json!({"by_track": sum(|k| k.by_track), "by_orb": sum(|k| k.by_orb), "fused": sum(|k| k.fused),
                    "new_points": sum(|k| k.new_points), "outliers": sum(|k| k.outliers),
                    "odometry_edges": sum(|k| usize::from(k.odometry_edge))}),
         );

@@ -89,7 +89,7 @@ pub(crate) fn finish_backend(c: Coupling, config: BackendConfig) -> Result<Backe
     let ids = map.keyframes().keys().chain(map.culled().keys());
     let mut keyframe_poses: Vec<(u64, Isometry3<f64>)> =
         ids.filter_map(|&k| Some((k, map.pose_of(k)?))).collect();
-    keyframe_poses.sort_by_key(|(k, _)| *k);
+    keyframe_poses.sort_by_key(|k| k.0);
     Ok(BackendSummary {
         config,
         keyframes: reports,

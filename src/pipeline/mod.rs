@@ -114,7 +114,6 @@ impl Slam {
             live_world_from_camera: correction * r.world_from_camera,
             odometry_world_from_camera: r.world_from_camera,
             keyframe_id: r.keyframe_id,
-            keyframe_from_camera: r.keyframe_from_camera,
             status: if r.status == TrackingStatus::Lost {
                 FrameStatus::Lost
             } else {
@@ -139,17 +138,13 @@ impl Slam {
         let (wait_s, correction) = self.take_due()?;
         tracing::warn!("frame {index} skipped: {reason}");
         let pose = self.vo.predict(t_s);
-        let (kf_id, world_from_kf) = self
-            .vo
-            .current_keyframe()
-            .unwrap_or((0, Isometry3::identity()));
+        let kf_id = self.vo.current_keyframe().map_or(0, |(id, _)| id);
         self.frames.push(FrameRecord {
             index,
             t_s,
             live_world_from_camera: correction * pose,
             odometry_world_from_camera: pose,
             keyframe_id: kf_id,
-            keyframe_from_camera: world_from_kf.inverse() * pose,
             status: FrameStatus::Skipped,
             keyframe: false,
             tracked: 0,

@@ -40,10 +40,8 @@ pub struct FrameRecord {
     pub live_world_from_camera: Isometry3<f64>,
     /// `world_from_camera` in the odometry's own world (never corrected).
     pub odometry_world_from_camera: Isometry3<f64>,
-    /// The keyframe the pose is kept relative to, and the pose relative to it.
+    /// The odometry's current keyframe when the frame was tracked.
     pub keyframe_id: u64,
-    /// `keyframe_from_camera`.
-    pub keyframe_from_camera: Isometry3<f64>,
     /// How the pose was obtained.
     pub status: FrameStatus,
     /// Whether it became a keyframe.
@@ -78,7 +76,8 @@ pub struct BackendSummary {
     pub culled_keyframes: usize,
     /// The final map's points (world frame, m), for plots.
     pub points_world: Vec<nalgebra::Point3<f64>>,
-    /// Final `world_from_camera` of every keyframe ever made, by identifier.
+    /// Final `world_from_camera` of every keyframe ever made (a culled one's through the
+    /// keyframe it is kept relative to), by identifier.
     pub keyframe_poses: Vec<(u64, Isometry3<f64>)>,
 }
 
@@ -89,7 +88,7 @@ impl BackendSummary {
         for f in out.frames.iter().filter(|f| f.keyframe) {
             if let Ok(i) = self
                 .keyframe_poses
-                .binary_search_by_key(&f.keyframe_id, |(k, _)| *k)
+                .binary_search_by_key(&f.keyframe_id, |k| k.0)
             {
                 if let Some((_, pose)) = self.keyframe_poses.get(i) {
                     // Frames are in time order and keyframes among them: pushing cannot fail.
@@ -117,10 +116,11 @@ pub struct RunOutput {
 impl RunOutput {
     /// The final `world_from_camera` of every frame (the live poses without a back end).
     ///
-    /// A frame between keyframes `A` and `B` has two estimates, each keyframe's final pose
-    /// times the frame's odometry pose relative to it; the frame takes their average,
-    /// weighted by its time between the two (all of `A`'s at `A`). A keyframe the odometry
-    /// placed poorly then spoils only half of its neighbours' poses instead of all of them.
+    /// A frame between keyframes `A` (its own) and `B` (the next) has two estimates, each
+    /// keyframe's final pose times the frame's odometry pose relative to it; the frame
+    /// takes their average, weighted by its time between the two (all of `A`'s at `A`). A
+    /// keyframe the odometry placed poorly then spoils only half of its neighbours' poses
+    /// instead of all of them.
     pub fn final_poses(&self) -> Vec<Isometry3<f64>> {
         let Some(b) = &self.backend else {
             return self
@@ -131,12 +131,11 @@ impl RunOutput {
         };
         let pose_of = |id: u64| {
             b.keyframe_poses
-                .binary_search_by_key(&id, |(k, _)| *k)
+                .binary_search_by_key(&id, |k| k.0)
                 .ok()
                 .and_then(|i| b.keyframe_poses.get(i))
-                .map(|(_, p)| *p)
+                .map(|k| k.1)
         };
-        // Each keyframe's record, and for each frame the next keyframe's record.
         let mut next_kf: Vec<Option<&FrameRecord>> = vec![None; self.frames.len()];
         let mut next = None;
         for (i, f) in self.frames.iter().enumerate().rev() {
@@ -151,23 +150,25 @@ impl RunOutput {
             .filter(|f| f.keyframe)
             .map(|f| (f.keyframe_id, f))
             .collect();
+        // A keyframe's final pose times the frame's odometry pose relative to it.
+        let through = |k: &FrameRecord, f: &FrameRecord| {
+            pose_of(k.keyframe_id).map(|world_from_k| {
+                world_from_k * k.odometry_world_from_camera.inverse() * f.odometry_world_from_camera
+            })
+        };
         self.frames
             .iter()
             .zip(next_kf)
-            .map(|(f, nk)| {
-                let Some(world_from_a) = pose_of(f.keyframe_id) else {
+            .map(|(f, kb)| {
+                let Some(ka) = kf_record.get(&f.keyframe_id) else {
                     return f.live_world_from_camera;
                 };
-                let from_a = world_from_a * f.keyframe_from_camera;
-                let (Some(kb), Some(ka)) = (nk, kf_record.get(&f.keyframe_id)) else {
+                let Some(from_a) = through(ka, f) else {
+                    return f.live_world_from_camera;
+                };
+                let Some((kb, from_b)) = kb.and_then(|kb| Some((kb, through(kb, f)?))) else {
                     return from_a;
                 };
-                let Some(world_from_b) = pose_of(kb.keyframe_id) else {
-                    return from_a;
-                };
-                let b_from_f =
-                    kb.odometry_world_from_camera.inverse() * f.odometry_world_from_camera;
-                let from_b = world_from_b * b_from_f;
                 let span = kb.t_s - ka.t_s;
                 let alpha = if span > 0.0 {
                     ((f.t_s - ka.t_s) / span).clamp(0.0, 1.0)
