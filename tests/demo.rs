@@ -25,8 +25,8 @@ fn demo_renders_tracks_maps_and_reports() {
     assert!(!err.contains("panicked"));
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(r["odometry"]["frames_tracked"], 30, "{r}");
-    assert!(num(&r["odometry"], "ate_rmse_m") < 0.01, "{r}");
+    assert_eq!(r["slam"]["frames_tracked"], 30, "{r}");
+    assert!(num(&r["slam"], "ate_rmse_m") < 0.01, "{r}");
     let (ours, base) = (
         &r["map_groundtruth_poses"]["stack"],
         &r["map_groundtruth_poses"]["fankhauser"],
@@ -34,7 +34,7 @@ fn demo_renders_tracks_maps_and_reports() {
     assert!(num(ours, "mse") < num(base, "mse"), "{r}");
     assert_eq!(ours["phantoms"], 0, "{r}");
     assert!(
-        num(&r["map_odometry_poses"]["stack"], "mse") < num(base, "mse"),
+        num(&r["map_slam_poses"]["stack"], "mse") < num(base, "mse"),
         "{r}"
     );
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
@@ -42,7 +42,7 @@ fn demo_renders_tracks_maps_and_reports() {
         "trajectory",
         "sequence/terrain.png",
         "map_groundtruth/stack/elevation.png",
-        "map_odometry/elevation.png",
+        "map_slam/elevation.png",
         "sequence/blur.svg",
     ] {
         assert!(html.contains(part), "{part}");
@@ -51,8 +51,8 @@ fn demo_renders_tracks_maps_and_reports() {
         "sequence/terrain.png",
         "sequence/blur.svg",
         "map_groundtruth/stack/elevation.png",
-        "map_odometry/elevation.png",
-        "odometry/trajectory_world.tum",
+        "map_slam/elevation.png",
+        "slam/trajectory_world.tum",
         "trajectory.svg",
     ] {
         assert!(out.join(file).is_file(), "{file}");

@@ -1,7 +1,7 @@
 //! `stride demo`: the whole pipeline on the embedded synthetic sequence. It renders a walking
-//! robot's RGB-D sequence with ground-truth poses and terrain, tracks it with the visual
-//! odometry, maps the terrain with ground-truth poses (our mapper and the Fankhauser
-//! baseline) and with the odometry's poses, and writes one report.
+//! robot's RGB-D sequence with ground-truth poses and terrain, tracks it with the SLAM
+//! (odometry and bundle adjustment), maps the terrain with ground-truth poses (our mapper and
+//! the Fankhauser baseline) and with the SLAM's poses, and writes one report.
 
 use crate::cli::map::{self, MapArgs, MapperArg};
 use crate::cli::run::{self, RunArgs};
@@ -19,7 +19,7 @@ use stride_eval::report::Report;
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
-    /// Output folder; its `sequence`, `odometry`, `map_groundtruth` and `map_odometry`
+    /// Output folder; its `sequence`, `slam`, `map_groundtruth` and `map_slam`
     /// subfolders are replaced.
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
@@ -34,9 +34,9 @@ pub struct DemoArgs {
     pub no_blur: bool,
 }
 
-/// The odometry's trajectory (in the frame of its first camera) expressed in the world
+/// The SLAM trajectory (in the frame of its first camera) expressed in the world
 /// frame of the ground truth by the ground-truth pose of the first frame, as a robot would
-/// start its map from the attitude its IMU gives. Every later pose is the odometry's own.
+/// start its map from the attitude its IMU gives. Every later pose is the SLAM's own.
 fn anchored(vo: &Trajectory, gt: &Trajectory) -> Result<Trajectory> {
     let (Some((t0, vo0)), true) = (vo.iter().next(), !gt.is_empty()) else {
         bail!("empty trajectory");
@@ -82,7 +82,7 @@ fn f(v: &Value, path: &[&str]) -> f64 {
 pub fn run(a: DemoArgs) -> Result<()> {
     let started = std::time::Instant::now();
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    for sub in ["sequence", "odometry", "map_groundtruth", "map_odometry"] {
+    for sub in ["sequence", "slam", "map_groundtruth", "map_slam"] {
         let p = a.out.join(sub);
         if p.exists() {
             std::fs::remove_dir_all(&p).with_context(|| format!("replacing {}", p.display()))?;
@@ -105,14 +105,14 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let synth = synthesize(&config, &a.out.join("sequence"), false)?;
     let blur = blur_report(&synth, config.fps)?;
 
-    // 2. Visual odometry.
-    tracing::info!("visual odometry");
+    // 2. SLAM: the odometry with the back end's bundle adjustment.
+    tracing::info!("SLAM");
     let vo = run::execute(&RunArgs {
         dataset: a.out.join("sequence"),
         camera: None,
-        out: a.out.join("odometry"),
-        backend: run::BackendArg::None,
-        vo_only: true,
+        out: a.out.join("slam"),
+        backend: run::BackendArg::Ba,
+        vo_only: false,
         free_running: false,
         seed: a.seed,
         max_frames: None,
@@ -120,10 +120,10 @@ pub fn run(a: DemoArgs) -> Result<()> {
     })?;
     let vo_traj = vo.output.trajectory()?;
     let vo_world = anchored(&vo_traj, &synth.groundtruth)?;
-    let vo_world_path = a.out.join("odometry/trajectory_world.tum");
+    let vo_world_path = a.out.join("slam/trajectory_world.tum");
     write_tum_trajectory(&vo_world_path, &vo_world)?;
 
-    // 3. Maps: ground-truth poses (ours and the baseline), then the odometry's poses.
+    // 3. Maps: ground-truth poses (ours and the baseline), then the SLAM's poses.
     tracing::info!("elevation maps");
     let (m_gt, _, _) = map::execute(&map_args(
         &a,
@@ -134,7 +134,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let (m_vo, _, _) = map::execute(&map_args(
         &a,
         vo_world_path.display().to_string(),
-        a.out.join("map_odometry"),
+        a.out.join("map_slam"),
         MapperArg::Stack,
     ))?;
 
@@ -144,7 +144,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "frames": a.frames,
         "seed": a.seed,
         "blur": config.blur,
-        "odometry": {
+        "slam": {
             "frames_tracked": j["frames_tracked"],
             "frames_lost": j["frames_lost"],
             "ate_rmse_m": vo.ate.as_ref().map(|r| r.trans_m.rmse),
@@ -157,13 +157,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
             "fankhauser": {"mse": m_gt["fankhauser"]["mse"], "mean_abs_m": m_gt["fankhauser"]["mean_abs"], "p95_abs_m": m_gt["fankhauser"]["p95_abs"], "coverage": m_gt["fankhauser"]["coverage"], "phantoms": m_gt["fankhauser"]["phantoms"]["phantoms"], "update_ms_median": m_gt["fankhauser"]["update_ms"]["median"]},
             "performance_index": m_gt["performance_index_stack_vs_fankhauser"],
         },
-        "map_odometry_poses": {"stack": {"mse": m_vo["mse"], "mean_abs_m": m_vo["mean_abs"], "p95_abs_m": m_vo["p95_abs"], "coverage": m_vo["coverage"], "phantoms": m_vo["phantoms"]["phantoms"]}},
+        "map_slam_poses": {"stack": {"mse": m_vo["mse"], "mean_abs_m": m_vo["mean_abs"], "p95_abs_m": m_vo["p95_abs"], "coverage": m_vo["coverage"], "phantoms": m_vo["phantoms"]["phantoms"]}},
         "wall_s": started.elapsed().as_secs_f64(),
     });
 
     let mut rep = Report::new("stride demo: a walking robot's pose and terrain");
     rep.paragraph(format!(
-        "A hexapod walks a tripod gait at {:.2} m/s over the procedural 'mixed' terrain (steps, ramps, rubble, boxes) with a Kinect-like RGB-D camera 0.4 m up, tilted down; {} frames at {} Hz{}, seed {}. Everything below is computed from the rendered images; the ground truth is used only to score (and to anchor the odometry's first pose, as a robot's IMU would).",
+        "A hexapod walks a tripod gait at {:.2} m/s over the procedural 'mixed' terrain (steps, ramps, rubble, boxes) with a Kinect-like RGB-D camera 0.4 m up, tilted down; {} frames at {} Hz{}, seed {}. Everything below is computed from the rendered images; the ground truth is used only to score (and to anchor the SLAM's first pose, as a robot's IMU would).",
         config.motion.speed_m_s,
         a.frames,
         config.fps,
@@ -181,26 +181,26 @@ pub fn run(a: DemoArgs) -> Result<()> {
             vec![
                 "frames tracked / lost".into(),
                 format!("{} / {}", j["frames_tracked"], j["frames_lost"]),
-                "odometry/report.html".into(),
+                "slam/report.html".into(),
             ],
             vec![
-                "odometry ATE rmse (SE(3) aligned)".into(),
-                cm(f(s, &["odometry", "ate_rmse_m"])),
-                "odometry/report.html".into(),
+                "SLAM ATE rmse (SE(3) aligned)".into(),
+                cm(f(s, &["slam", "ate_rmse_m"])),
+                "slam/report.html".into(),
             ],
             vec![
-                "odometry RPE rmse per frame".into(),
+                "SLAM RPE rmse per frame".into(),
                 format!(
                     "{} / {:.3} deg",
-                    cm(f(s, &["odometry", "rpe_rmse_m_per_frame"])),
-                    f(s, &["odometry", "rpe_rmse_deg_per_frame"])
+                    cm(f(s, &["slam", "rpe_rmse_m_per_frame"])),
+                    f(s, &["slam", "rpe_rmse_deg_per_frame"])
                 ),
-                "odometry/report.html".into(),
+                "slam/report.html".into(),
             ],
             vec![
-                "odometry speed (decoding excluded)".into(),
-                format!("{:.0} frames/s", f(s, &["odometry", "fps"])),
-                "odometry/report.html".into(),
+                "SLAM speed (decoding excluded)".into(),
+                format!("{:.0} frames/s", f(s, &["slam", "fps"])),
+                "slam/report.html".into(),
             ],
             vec![
                 "map MSE, ours, ground-truth poses".into(),
@@ -248,18 +248,18 @@ pub fn run(a: DemoArgs) -> Result<()> {
                 "map_groundtruth/report.html".into(),
             ],
             vec![
-                "map MSE, ours, odometry poses".into(),
-                mse(f(s, &["map_odometry_poses", "stack", "mse"])),
-                "map_odometry/report.html".into(),
+                "map MSE, ours, SLAM poses".into(),
+                mse(f(s, &["map_slam_poses", "stack", "mse"])),
+                "map_slam/report.html".into(),
             ],
             vec![
-                "map error mean / 95th percentile: ours, odometry poses".into(),
+                "map error mean / 95th percentile: ours, SLAM poses".into(),
                 format!(
                     "{} / {}",
-                    cm(f(s, &["map_odometry_poses", "stack", "mean_abs_m"])),
-                    cm(f(s, &["map_odometry_poses", "stack", "p95_abs_m"]))
+                    cm(f(s, &["map_slam_poses", "stack", "mean_abs_m"])),
+                    cm(f(s, &["map_slam_poses", "stack", "p95_abs_m"]))
                 ),
-                "map_odometry/report.html".into(),
+                "map_slam/report.html".into(),
             ],
             vec![
                 "phantom cells > 2 cm over flat ground: ours / baseline".into(),
@@ -303,7 +303,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             y_label: "y (m)".into(),
             series: vec![
                 Series::line("ground truth", PALETTE[6], top(&synth.groundtruth)),
-                Series::line("visual odometry", PALETTE[1], top(&vo_world)),
+                Series::line("SLAM", PALETTE[1], top(&vo_world)),
             ],
             equal_aspect: true,
             ..Chart::default()
@@ -314,7 +314,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
             y_label: "z (m)".into(),
             series: vec![
                 Series::line("ground truth", PALETTE[6], side(&synth.groundtruth)),
-                Series::line("visual odometry", PALETTE[1], side(&vo_world)),
+                Series::line("SLAM", PALETTE[1], side(&vo_world)),
             ],
             ..Chart::default()
         },
@@ -322,7 +322,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     rep.figure(
         "trajectory",
         render(&charts, 2, 520.0, 380.0),
-        "The odometry's trajectory (anchored at the first ground-truth pose) against ground truth.",
+        "The SLAM trajectory (anchored at the first ground-truth pose) against ground truth.",
     );
     rep.heading("Terrain");
     rep.image("sequence/terrain.png", "Ground-truth terrain (colour relief, +y up); objects are left out of the ground truth (NaN).");
@@ -335,8 +335,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "The Fankhauser et al. 2014 baseline on the same frames and poses.",
     );
     rep.image(
-        "map_odometry/elevation.png",
-        "Our map with the visual odometry's poses: what a robot without ground truth gets.",
+        "map_slam/elevation.png",
+        "Our map with the SLAM's poses: what a robot without ground truth gets.",
     );
     rep.heading("Motion blur");
     rep.paragraph(blur);
@@ -356,13 +356,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
     )?;
 
     crate::outln!(
-        "odometry: {} of {} frames tracked, ATE {:.2} cm; map MSE ours {:.2e} m² vs baseline {:.2e} m² (odometry poses: {:.2e} m²), phantoms {} vs {}",
+        "SLAM: {} of {} frames tracked, ATE {:.2} cm; map MSE ours {:.2e} m² vs baseline {:.2e} m² (SLAM poses: {:.2e} m²), phantoms {} vs {}",
         j["frames_tracked"],
         a.frames,
-        100.0 * f(s, &["odometry", "ate_rmse_m"]),
+        100.0 * f(s, &["slam", "ate_rmse_m"]),
         f(s, &["map_groundtruth_poses", "stack", "mse"]),
         f(s, &["map_groundtruth_poses", "fankhauser", "mse"]),
-        f(s, &["map_odometry_poses", "stack", "mse"]),
+        f(s, &["map_slam_poses", "stack", "mse"]),
         m_gt["stack"]["phantoms"]["phantoms"],
         m_gt["fankhauser"]["phantoms"]["phantoms"]
     )?;
