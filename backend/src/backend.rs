@@ -259,6 +259,12 @@ impl Backend {
         });
         report.culled_keyframes = self.cull_keyframes(&window);
         report.culled_points = self.cull_points(id);
+        // A keyframe that has left the window (and whose new points have had their grace
+        // period) keeps only the features that observe a point.
+        let settled = self.config.window_keyframes as u64 + self.config.point_grace_keyframes;
+        if let Some(old) = id.checked_sub(settled) {
+            self.map.drop_unmapped_features(old);
+        }
         report.time_s = start.elapsed().as_secs_f64();
         Ok(KeyframeUpdate {
             keyframe_id: id,

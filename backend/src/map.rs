@@ -377,6 +377,42 @@ impl Map {
         }
     }
 
+    /// Drops the features of keyframe `id` that observe no point, renumbering the
+    /// observations of the others (their order is kept). Meant for keyframes older than the
+    /// local window: nothing gives their features a point any more, and those features are
+    /// most of a keyframe's memory (a 10,000-frame run kept 644,000 of which 37,000 had a
+    /// point). Returns how many were dropped.
+    pub fn drop_unmapped_features(&mut self, id: KeyframeId) -> usize {
+        let Some(kf) = self.keyframes.get_mut(&id) else {
+            return 0;
+        };
+        let all = std::mem::take(&mut kf.features);
+        let before = all.len();
+        let mut renumbered = Vec::new();
+        let mut kept = Vec::with_capacity(all.iter().filter(|f| f.point.is_some()).count());
+        for (old, f) in all.into_iter().enumerate() {
+            if let Some(p) = f.point {
+                renumbered.push((p, old, kept.len()));
+                kept.push(f);
+            }
+        }
+        let dropped = before - kept.len();
+        kf.features = kept;
+        for (p, old, new) in renumbered {
+            let Some(mp) = self.points.get_mut(&p) else {
+                continue;
+            };
+            for o in mp
+                .observations
+                .iter_mut()
+                .filter(|o| o.keyframe == id && o.feature == old)
+            {
+                o.feature = new;
+            }
+        }
+        dropped
+    }
+
     /// Removes a keyframe and its observations; frames that refer to it keep their pose
     /// relative to `parent` (which must exist).
     pub fn cull_keyframe(&mut self, id: KeyframeId, parent: KeyframeId) -> bool {

@@ -133,3 +133,32 @@ fn merging_moves_observations_and_culling_keeps_poses() {
     assert!((map.pose_of(1).unwrap().translation.y - 1.0).abs() < 1e-12);
     assert_eq!(map.point(a).unwrap().observations.len(), 2);
 }
+
+#[test]
+fn dropping_unmapped_features_renumbers_observations() {
+    let mut map = Map::new();
+    for k in 0..2 {
+        map.insert_keyframe(keyframe(k, 0.1 * k as f64, 6));
+    }
+    // Keyframe 0 observes points through features 1, 3 and 5 only.
+    let pts: Vec<PointId> = [1, 3, 5]
+        .iter()
+        .map(|&f| map.create_point(0, f).unwrap())
+        .collect();
+    for (i, &p) in pts.iter().enumerate() {
+        assert!(map.add_observation(p, 1, i));
+    }
+    check(&map);
+    assert_eq!(map.drop_unmapped_features(0), 3);
+    check(&map);
+    let kf = map.keyframe(0).unwrap();
+    assert_eq!(kf.features.len(), 3);
+    assert_eq!(
+        kf.features.iter().map(|f| f.track_id).collect::<Vec<_>>(),
+        vec![1, 3, 5],
+        "the kept features keep their order"
+    );
+    assert_eq!(kf.covisibility[&1], 3);
+    assert_eq!(map.drop_unmapped_features(0), 0);
+    assert_eq!(map.drop_unmapped_features(7), 0, "unknown keyframe");
+}
