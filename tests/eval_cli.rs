@@ -287,12 +287,20 @@ fn bad_lines_fail_with_file_and_line() {
         "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n",
         ":2: timestamp 1.000000 is earlier than 2.000000 on line 1",
     );
-    fails_naming(
-        "1.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n",
-        ":2: duplicate timestamp 1.000000 (also on line 1)",
-    );
     fails_naming("", ": no poses");
     fails_naming("# header only\n", ": no poses");
+}
+
+#[test]
+fn duplicate_timestamps_are_accepted_with_a_warning_naming_both_lines() {
+    let text = "1.0 0 0 0 0 0 0 1\n2.0 1 0 0 0 0 0 1\n2.0 1 0.1 0 0 0 0 1\n3.0 1 1 0 0 0 0 1\n";
+    let (ok, err, est) = ate_on(text, &[]);
+    assert!(ok, "{err}");
+    let expected = format!("{}: lines 2 and 3 have the same timestamp", est.display());
+    assert!(err.contains(&expected), "expected '{expected}' in: {err}");
+    // The TUM preset keeps the last of the two lines, as the TUM scripts' dictionary does.
+    let (ok, err, _) = ate_on(text, &["--preset", "tum"]);
+    assert!(ok, "{err}");
 }
 
 #[test]

@@ -1,5 +1,6 @@
 //! Runs evo (from a throwaway venv, never a project dependency) on the same files as stride
-//! and compares every statistic. Skipped when evo is not installed; `.ci/run` installs it.
+//! and compares every statistic. Skipped when evo is not installed, except under CI=true,
+//! where that is a failure; `.ci/run` installs it.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
 
@@ -40,10 +41,79 @@ fn compare(what: &str, ours: &serde_json::Value, evo: &serde_json::Value) {
     }
 }
 
+/// Whether evo can run; a failure under CI=true when it cannot.
+fn have_evo() -> bool {
+    if evo_python().is_some() {
+        return true;
+    }
+    let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+    assert!(
+        !ci,
+        "evo is not installed (STRIDE_EVO_PYTHON or /tmp/peers-venv); under CI=true this is a failure"
+    );
+    eprintln!("SKIP: evo not installed (set STRIDE_EVO_PYTHON to a venv python with evo)");
+    false
+}
+
+/// A copy of `src` with some lines followed by a duplicate of their timestamp holding
+/// another pose (0.05 m away), as in some official TUM ground-truth files.
+fn with_duplicates(src: &std::path::Path, dir: &std::path::Path, every: usize) -> String {
+    let text = std::fs::read_to_string(src).unwrap();
+    let mut out = String::new();
+    let mut n = 0;
+    for line in text.lines() {
+        out.push_str(line);
+        out.push('\n');
+        if line.starts_with('#') || line.trim().is_empty() {
+            continue;
+        }
+        n += 1;
+        if n % every == 0 {
+            let mut f: Vec<String> = line.split_whitespace().map(str::to_owned).collect();
+            let x: f64 = f[1].parse().unwrap();
+            f[1] = format!("{:.4}", x + 0.05);
+            out.push_str(&f.join(" "));
+            out.push('\n');
+        }
+    }
+    let path = dir.join(src.file_name().unwrap());
+    std::fs::write(&path, out).unwrap();
+    path.display().to_string()
+}
+
+#[test]
+fn duplicated_timestamps_give_evos_numbers() {
+    if !have_evo() {
+        return;
+    }
+    let (Some(gt), Some(est)) = (
+        data("trajectories/freiburg1_xyz-groundtruth.txt"),
+        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
+    ) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (gt_dup, est_dup) = (
+        with_duplicates(&gt, tmp.path(), 7),
+        with_duplicates(&est, tmp.path(), 5),
+    );
+    let (gt, est) = (gt.display().to_string(), est.display().to_string());
+    // In the ground truth (the longer one: evo searches it), in the estimate (the shorter
+    // one: evo walks it, so both lines count), and in both.
+    for (g, e) in [(&gt_dup, &est), (&gt, &est_dup), (&gt_dup, &est_dup)] {
+        for align in ["se3", "none"] {
+            let ours = run_json(&[
+                "eval", "ate", "--gt", g, "--est", e, "--align", align, "--json",
+            ]);
+            let evo = evo_stats(&["ape", g, e, align, "0.01"]);
+            compare(&format!("ATE {g} {e} {align}"), &ours, &evo);
+        }
+    }
+}
+
 #[test]
 fn every_statistic_agrees_with_evo() {
-    if evo_python().is_none() {
-        eprintln!("SKIP: evo not installed (set STRIDE_EVO_PYTHON to a venv python with evo)");
+    if !have_evo() {
         return;
     }
     let (Some(gt), Some(est), Some(drift), Some(mono)) = (

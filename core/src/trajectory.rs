@@ -33,9 +33,11 @@ pub enum TrajectoryError {
         /// Zero-based index of the pose.
         index: usize,
     },
-    /// Timestamps do not increase strictly.
-    #[error("timestamp #{index} ({value:.6} s) is not after the previous one ({previous:.6} s)")]
-    NotIncreasing {
+    /// A timestamp is earlier than the one before it.
+    #[error(
+        "timestamp #{index} ({value:.6} s) is earlier than the previous one ({previous:.6} s)"
+    )]
+    Decreasing {
         /// Zero-based index of the offending pose.
         index: usize,
         /// Its timestamp (s).
@@ -45,9 +47,10 @@ pub enum TrajectoryError {
     },
 }
 
-/// Poses at strictly increasing timestamps (seconds; any epoch).
+/// Poses at timestamps in time order (seconds; any epoch).
 ///
-/// Invariants: as many stamps as poses, every number finite, stamps strictly increasing.
+/// Invariants: as many stamps as poses, every number finite, stamps never decreasing (equal
+/// stamps come from a line duplicated in a file).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
     stamps_s: Vec<f64>,
@@ -83,7 +86,9 @@ impl Trajectory {
         Ok(traj)
     }
 
-    /// Appends a pose; its stamp must be finite and later than the last one.
+    /// Appends a pose; its stamp must be finite and not earlier than the last one. An equal
+    /// stamp is allowed (a line duplicated in a file, which evo and the TUM tools accept);
+    /// [`Trajectory::interpolate`] at such a time gives the later of the two poses.
     pub fn push(&mut self, t_s: f64, pose: Pose) -> Result<(), TrajectoryError> {
         let index = self.stamps_s.len();
         if !t_s.is_finite() {
@@ -93,8 +98,8 @@ impl Trajectory {
             return Err(TrajectoryError::NonFinitePose { index });
         }
         if let Some(&previous) = self.stamps_s.last() {
-            if t_s <= previous {
-                return Err(TrajectoryError::NotIncreasing {
+            if t_s < previous {
+                return Err(TrajectoryError::Decreasing {
                     index,
                     value: t_s,
                     previous,
@@ -190,16 +195,18 @@ mod tests {
     }
 
     #[test]
-    fn rejects_unsorted_duplicate_and_nan_stamps() {
+    fn rejects_unsorted_and_nan_stamps_and_keeps_duplicates() {
         let mut t = Trajectory::new();
         t.push(1.0, pose(0.0, 0.0)).unwrap();
-        assert!(matches!(
-            t.push(1.0, pose(0.0, 0.0)),
-            Err(TrajectoryError::NotIncreasing { index: 1, .. })
-        ));
+        t.push(1.0, pose(1.0, 0.0)).unwrap();
+        t.push(2.0, pose(3.0, 0.0)).unwrap();
+        assert_eq!(t.len(), 3);
+        // At a duplicated stamp the later pose counts; after it, interpolation starts there.
+        assert_relative_eq!(t.interpolate(1.0).unwrap().translation.x, 1.0);
+        assert_relative_eq!(t.interpolate(1.5).unwrap().translation.x, 2.0);
         assert!(matches!(
             t.push(0.5, pose(0.0, 0.0)),
-            Err(TrajectoryError::NotIncreasing { .. })
+            Err(TrajectoryError::Decreasing { index: 3, .. })
         ));
         assert!(matches!(
             t.push(f64::NAN, pose(0.0, 0.0)),

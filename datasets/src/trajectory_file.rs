@@ -10,8 +10,14 @@
 //! * every field must be a finite number (NaN and inf are refused: a lost frame should be
 //!   left out of the file, not written as NaN);
 //! * the quaternion must not be zero (the TUM tools and evo silently read it as identity);
-//! * timestamps must increase strictly: a duplicate or a step back in time is an error,
-//!   naming both lines.
+//! * timestamps must not go back in time: a step back is an error naming both lines (sort
+//!   the file, e.g. `sort -n`).
+//! * a duplicated timestamp is accepted, as evo and the TUM scripts accept it, with a
+//!   warning naming the file, both lines and the count. Both poses are kept: evo's
+//!   nearest-stamp association (the `evo` preset) then picks one by its own rule (the later
+//!   line for a stamp at or after the duplicate, the earlier one for a stamp before it), and
+//!   the `tum` preset keeps the last line, as the TUM scripts' dictionary does. Interpolation
+//!   at that time uses the later pose.
 //! * a file without any pose is an error.
 //!
 //! A quaternion whose norm differs from 1 is normalised, as the TUM tools and evo do; when it
@@ -43,6 +49,8 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Trajectory, Datas
     let mut last_line = 0usize;
     let mut far_from_unit: Option<(usize, f64)> = None;
     let mut far_count = 0usize;
+    let mut duplicates = 0usize;
+    let mut first_duplicate: Option<(usize, usize, f64)> = None;
     for dl in data_lines(text) {
         let fields = dl.exact_fields::<8>().map_err(|n| {
             DatasetError::parse(
@@ -64,11 +72,8 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Trajectory, Datas
         }
         if let Some(&previous) = traj.stamps_s().last() {
             if t == previous {
-                return Err(DatasetError::parse(
-                    path,
-                    dl.line,
-                    format!("duplicate timestamp {t:.6} (also on line {last_line})"),
-                ));
+                duplicates += 1;
+                first_duplicate.get_or_insert((last_line, dl.line, t));
             }
             if t < previous {
                 return Err(DatasetError::parse(
@@ -90,6 +95,13 @@ pub fn parse_tum_trajectory(text: &str, path: &Path) -> Result<Trajectory, Datas
             path,
             "no poses: the file is empty or holds only comments",
         ));
+    }
+    if let Some((a, b, t)) = first_duplicate {
+        tracing::warn!(
+            "{}: lines {a} and {b} have the same timestamp {t:.6}; both kept, as evo and the \
+             TUM scripts do ({duplicates} duplicated timestamp(s) in the file)",
+            path.display()
+        );
     }
     if let Some((line, norm)) = far_from_unit {
         tracing::warn!(
@@ -161,9 +173,10 @@ mod tests {
         assert!(parse("# c\n1 0 0 0 0 0 0 0\n")
             .unwrap_err()
             .starts_with("traj.txt:2: quaternion (qx qy qz qw) has norm 0"));
+        // A duplicated timestamp is kept (evo and the TUM scripts accept it).
         assert_eq!(
-            parse("1 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 1\n").unwrap_err(),
-            "traj.txt:2: duplicate timestamp 1.000000 (also on line 1)"
+            parse("1 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n").unwrap().len(),
+            2
         );
         assert!(parse("2 0 0 0 0 0 0 1\n\n1 0 0 0 0 0 0 1\n")
             .unwrap_err()

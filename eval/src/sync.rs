@@ -27,9 +27,33 @@ pub fn associate(
                     .collect()
             }
         }
-        // evaluate_ate.py: associate(first=gt, second=est, offset, max_difference).
-        Preset::Tum => associate_greedy(gt.stamps_s(), est.stamps_s(), offset_s, t_max_diff_s),
+        // evaluate_ate.py: associate(first=gt, second=est, offset, max_difference), on
+        // dictionaries keyed by stamp: of lines with the same stamp, the last one counts.
+        Preset::Tum => {
+            let (gt_last, est_last) = (last_of_each_stamp(gt), last_of_each_stamp(est));
+            let stamps = |t: &Trajectory, keep: &[usize]| -> Vec<f64> {
+                keep.iter()
+                    .filter_map(|&i| t.stamps_s().get(i).copied())
+                    .collect()
+            };
+            associate_greedy(
+                &stamps(gt, &gt_last),
+                &stamps(est, &est_last),
+                offset_s,
+                t_max_diff_s,
+            )
+            .into_iter()
+            .filter_map(|(a, b)| Some((*gt_last.get(a)?, *est_last.get(b)?)))
+            .collect()
+        }
     }
+}
+
+/// Indices of the poses that are the last of their timestamp (all of them when no stamp is
+/// duplicated).
+fn last_of_each_stamp(t: &Trajectory) -> Vec<usize> {
+    let s = t.stamps_s();
+    (0..s.len()).filter(|&i| s.get(i + 1) != s.get(i)).collect()
 }
 
 fn span(t: &Trajectory) -> String {
