@@ -341,8 +341,8 @@ fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
     };
     let n = live.len();
     assert!(n > 5, "{n} keyframes in the map");
-    for i in 0..n - 5 {
-        assert_eq!(moved(i), 0.0, "keyframe {} is held fixed", live[i]);
+    for (i, k) in live.iter().enumerate().take(n - 5) {
+        assert_eq!(moved(i), 0.0, "keyframe {k} is held fixed");
     }
     assert!((n - 5..n).any(|i| moved(i) > 0.0), "the newest five move");
 }
