@@ -128,3 +128,98 @@ fn a_folder_without_camera_or_lists_is_a_clear_error() {
         .to_string();
     assert!(e.contains("rgb.txt"), "{e}");
 }
+
+/// A TUM folder whose colour images are JPEG (as in re-distributed sequences), with one
+/// rgb.txt line repeated: it opens with a warning, tracks like the PNG original, and a JPEG
+/// in depth.txt is a clear error.
+#[test]
+fn jpeg_colour_images_and_a_repeated_list_line_are_read() {
+    let Some(src) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let dst = tmp.path().join("teddy_jpeg");
+    std::fs::create_dir_all(dst.join("rgb")).unwrap();
+    let seq = TumSequence::open(&src, Some("fr3"), AssociationOptions::default()).unwrap();
+    let (mut rgb_txt, mut depth_txt) = (String::new(), String::new());
+    for (i, f) in seq.frames.iter().take(60).enumerate() {
+        let img = stride_datasets::png_io::read_rgb(&f.rgb_path).unwrap();
+        let bytes: Vec<u8> = img.as_slice().iter().flatten().copied().collect();
+        let name = format!("rgb/{i:04}.jpg");
+        jpeg_encoder::Encoder::new_file(dst.join(&name), 90)
+            .unwrap()
+            .encode(
+                &bytes,
+                img.width() as u16,
+                img.height() as u16,
+                jpeg_encoder::ColorType::Rgb,
+            )
+            .unwrap();
+        let line = format!("{:.6} {name}\n", f.t_rgb_s);
+        if i == 10 {
+            rgb_txt += &line; // the same line twice
+        }
+        rgb_txt += &line;
+        let depth = std::fs::canonicalize(&f.depth_path).unwrap();
+        depth_txt += &format!("{:.6} {}\n", f.t_depth_s, depth.display());
+    }
+    std::fs::write(dst.join("rgb.txt"), rgb_txt).unwrap();
+    std::fs::write(dst.join("depth.txt"), &depth_txt).unwrap();
+    std::fs::copy(src.join("groundtruth.txt"), dst.join("groundtruth.txt")).unwrap();
+    let run = |dir: &std::path::Path, out: &str| {
+        let out = tmp.path().join(out);
+        let err = common::run_ok(&[
+            "run",
+            "--dataset",
+            dir.to_str().unwrap(),
+            "--camera",
+            "fr3",
+            "--out",
+            out.to_str().unwrap(),
+            "--vo-only",
+            "--max-frames",
+            "60",
+        ]);
+        (common::report(&out), err)
+    };
+    let (jpeg, err) = run(&dst, "jpeg");
+    assert!(
+        err.contains("rgb.txt: lines 11 and 12 have the same timestamp"),
+        "{err}"
+    );
+    assert_eq!(jpeg["frames_tracked"], 60, "{jpeg}");
+    let (png, _) = run(&src, "png");
+    let (a, b) = (
+        common::num(&jpeg["ate"], "rmse"),
+        common::num(&png["ate"], "rmse"),
+    );
+    // JPEG at quality 90 changes corners a little: the same accuracy within a few mm.
+    assert!(a < 0.02 && (a - b).abs() < 0.005, "JPEG {a} m, PNG {b} m");
+    // Depth must stay lossless.
+    let jpeg_depth = depth_txt.replacen(
+        &std::fs::canonicalize(&seq.frames[0].depth_path)
+            .unwrap()
+            .display()
+            .to_string(),
+        &dst.join("rgb/0000.jpg").display().to_string(),
+        1,
+    );
+    std::fs::write(dst.join("depth.txt"), jpeg_depth).unwrap();
+    let out = common::run(&[
+        "run",
+        "--dataset",
+        dst.to_str().unwrap(),
+        "--camera",
+        "fr3",
+        "--out",
+        tmp.path().join("bad").to_str().unwrap(),
+        "--vo-only",
+        "--max-frames",
+        "5",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("0000.jpg") && err.contains("not a PNG"),
+        "{err}"
+    );
+}

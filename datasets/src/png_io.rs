@@ -1,4 +1,4 @@
-//! PNG decoding and encoding for colour images and 16-bit depth images.
+//! Image decoding and encoding: colour images (PNG or JPEG) and 16-bit PNG depth images.
 
 use crate::error::DatasetError;
 use png::{BitDepth, ColorType, Transformations};
@@ -53,9 +53,22 @@ fn read_file(path: &Path) -> Result<Vec<u8>, DatasetError> {
     std::fs::read(path).map_err(|e| DatasetError::io(path, e))
 }
 
-/// Decodes a colour PNG (8 or 16 bit; grey, grey+alpha, RGB, RGBA or palette) to 8-bit RGB.
-/// Alpha is dropped; 16-bit channels keep their high byte.
+const PNG_MAGIC: &[u8] = b"\x89PNG";
+const JPEG_MAGIC: &[u8] = &[0xFF, 0xD8, 0xFF];
+
+/// Decodes a colour image to 8-bit RGB, by its content (not its name): a PNG (8 or 16 bit;
+/// grey, grey+alpha, RGB, RGBA or palette; alpha is dropped, 16-bit channels keep their high
+/// byte) or a JPEG (colour or grey). Anything else is an error naming the file.
 pub fn decode_rgb(bytes: &[u8], path: &Path) -> Result<RgbImage, DatasetError> {
+    if bytes.starts_with(JPEG_MAGIC) {
+        return decode_jpeg(bytes, path);
+    }
+    if !bytes.starts_with(PNG_MAGIC) {
+        return Err(image_err(
+            path,
+            "not a PNG or JPEG image (colour images must be one of the two)",
+        ));
+    }
     let raw = decode_raw(
         bytes,
         path,
@@ -83,7 +96,33 @@ pub fn decode_rgb(bytes: &[u8], path: &Path) -> Result<RgbImage, DatasetError> {
     Image::from_vec(raw.width, raw.height, px).map_err(|e| image_err(path, e.to_string()))
 }
 
-/// Reads and decodes a colour PNG file; see [`decode_rgb`].
+/// Decodes a JPEG (baseline or progressive; colour or grey) to 8-bit RGB.
+fn decode_jpeg(bytes: &[u8], path: &Path) -> Result<RgbImage, DatasetError> {
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+    let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::RGB);
+    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(Cursor::new(bytes), options);
+    let pixels = decoder
+        .decode()
+        .map_err(|e| image_err(path, format!("corrupt or unsupported JPEG: {e:?}")))?;
+    let info = decoder
+        .info()
+        .ok_or_else(|| image_err(path, "JPEG without a frame header"))?;
+    let px: Vec<[u8; 3]> = match decoder.output_colorspace() {
+        Some(ColorSpace::RGB) => pixels.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+        Some(ColorSpace::Luma) => pixels.iter().map(|&g| [g, g, g]).collect(),
+        other => {
+            return Err(image_err(
+                path,
+                format!("JPEG decoded to an unsupported colour space {other:?}"),
+            ))
+        }
+    };
+    Image::from_vec(u32::from(info.width), u32::from(info.height), px)
+        .map_err(|e| image_err(path, e.to_string()))
+}
+
+/// Reads and decodes a colour image file (PNG or JPEG); see [`decode_rgb`].
 pub fn read_rgb(path: &Path) -> Result<RgbImage, DatasetError> {
     decode_rgb(&read_file(path)?, path)
 }
@@ -95,6 +134,13 @@ pub fn decode_depth(
     path: &Path,
     depth_scale: f64,
 ) -> Result<DepthImage, DatasetError> {
+    if !bytes.starts_with(PNG_MAGIC) {
+        return Err(image_err(
+            path,
+            "a depth image must be a 16-bit single-channel PNG; this file is not a PNG \
+             (a lossy format such as JPEG cannot hold depth)",
+        ));
+    }
     let raw = decode_raw(bytes, path, Transformations::IDENTITY)?;
     if raw.color != ColorType::Grayscale || raw.depth != BitDepth::Sixteen {
         return Err(image_err(
@@ -204,6 +250,34 @@ mod tests {
         assert_eq!(rgb.as_slice(), &[[7, 7, 7], [9, 9, 9]]);
     }
 
+    fn testdata(name: &str) -> std::path::PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("testdata")
+            .join(name)
+    }
+
+    /// The fixtures (made with Pillow, quality 95): red = 10 x, green = 15 y, blue = 128.
+    #[test]
+    fn jpeg_colour_grey_and_progressive_decode_to_rgb() {
+        for name in ["gradient_24x16.jpg", "gradient_24x16_progressive.jpg"] {
+            let bytes = std::fs::read(testdata(name)).unwrap();
+            let img = decode_rgb(&bytes, Path::new(name)).unwrap();
+            assert_eq!((img.width(), img.height()), (24, 16));
+            for (x, y) in [(0u32, 0u32), (12, 8), (23, 15)] {
+                let [r, g, b] = img.as_slice()[(y * 24 + x) as usize];
+                let near = |a: u8, e: u32| (i64::from(a) - i64::from(e)).abs() <= 12;
+                assert!(
+                    near(r, 10 * x) && near(g, 15 * y) && near(b, 128),
+                    "{name} ({x}, {y}): {r} {g} {b}"
+                );
+            }
+        }
+        let bytes = std::fs::read(testdata("grey_24x16.jpg")).unwrap();
+        let img = decode_rgb(&bytes, Path::new("grey")).unwrap();
+        let [r, g, b] = img.as_slice()[23];
+        assert!(r == g && g == b && (218..=242).contains(&r), "{r} {g} {b}");
+    }
+
     #[test]
     fn wrong_formats_and_garbage_are_named() {
         let g = Image::from_vec(1, 1, vec![7u8]).unwrap();
@@ -218,7 +292,23 @@ mod tests {
         let e = decode_rgb(b"not a png", Path::new("rgb/y.png"))
             .unwrap_err()
             .to_string();
-        assert!(e.starts_with("rgb/y.png: not a readable PNG"), "{e}");
+        assert!(e.starts_with("rgb/y.png: not a PNG or JPEG image"), "{e}");
+        let e = decode_rgb(b"\x89PNG garbage", Path::new("rgb/z.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("rgb/z.png: not a readable PNG"), "{e}");
+        let jpeg = std::fs::read(testdata("gradient_24x16.jpg")).unwrap();
+        let e = decode_depth(&jpeg, Path::new("depth/j.png"), 5000.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("this file is not a PNG"), "{e}");
+        let e = decode_rgb(&jpeg[..jpeg.len() / 3], Path::new("rgb/t.jpg"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("rgb/t.jpg: corrupt or unsupported JPEG"),
+            "{e}"
+        );
         let mut truncated = encode_rgb(&Image::filled(64, 64, [9u8, 9, 9])).unwrap();
         truncated.truncate(truncated.len() / 2);
         assert!(decode_rgb(&truncated, Path::new("t.png")).is_err());

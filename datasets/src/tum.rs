@@ -82,11 +82,16 @@ pub struct TumSequence {
     pub unmatched_rgb: usize,
 }
 
-/// Reads `rgb.txt`/`depth.txt`: `timestamp filename` lines with strictly increasing stamps.
+/// Reads `rgb.txt`/`depth.txt`: `timestamp filename` lines in time order. A step back in
+/// time is an error naming both lines; a repeated timestamp keeps the later line, as the
+/// TUM scripts (which read the list into a dictionary) do, with a warning naming the file,
+/// both lines and the count.
 pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> {
     let text = read_text(path)?;
     let mut out: Vec<(f64, String)> = Vec::new();
     let mut last_line = 0;
+    let mut duplicates = 0usize;
+    let mut first_duplicate = None;
     for dl in data_lines(&text) {
         let [stamp, file] = dl.exact_fields::<2>().map_err(|n| {
             DatasetError::parse(
@@ -97,19 +102,31 @@ pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> 
         })?;
         let t = parse_finite(path, dl.line, "timestamp", stamp)?;
         if let Some((prev, _)) = out.last() {
-            if t <= *prev {
+            if t < *prev {
                 return Err(DatasetError::parse(
                     path,
                     dl.line,
                     format!(
-                        "timestamp {t:.6} is not after {prev:.6} on line {last_line}: \
-                         entries must be sorted by time without duplicates"
+                        "timestamp {t:.6} is earlier than {prev:.6} on line {last_line}: \
+                         entries must be sorted by time"
                     ),
                 ));
+            }
+            if t == *prev {
+                duplicates += 1;
+                first_duplicate.get_or_insert((last_line, dl.line, t));
+                out.pop();
             }
         }
         out.push((t, file.to_owned()));
         last_line = dl.line;
+    }
+    if let Some((a, b, t)) = first_duplicate {
+        tracing::warn!(
+            "{}: lines {a} and {b} have the same timestamp {t:.6}; the later line is used, as \
+             the TUM scripts do ({duplicates} duplicated timestamp(s) in the file)",
+            path.display()
+        );
     }
     Ok(out)
 }
@@ -354,10 +371,16 @@ mod tests {
         let p = dir.join("rgb.txt");
         std::fs::write(&p, "# c\n1.0 rgb/1.png\n2.0 rgb/2.png\n").unwrap();
         assert_eq!(read_image_list(&p).unwrap().len(), 2);
-        std::fs::write(&p, "1.0 rgb/1.png\n1.0 rgb/2.png\n").unwrap();
+        std::fs::write(&p, "1.0 rgb/1.png\n1.0 rgb/2.png\n2.0 rgb/3.png\n").unwrap();
+        assert_eq!(
+            read_image_list(&p).unwrap(),
+            vec![(1.0, "rgb/2.png".to_owned()), (2.0, "rgb/3.png".to_owned())],
+            "a repeated timestamp keeps the later line"
+        );
+        std::fs::write(&p, "2.0 rgb/1.png\n1.0 rgb/2.png\n").unwrap();
         let e = read_image_list(&p).unwrap_err().to_string();
         assert!(
-            e.contains("rgb.txt:2: timestamp 1.000000 is not after"),
+            e.contains("rgb.txt:2: timestamp 1.000000 is earlier than 2.000000 on line 1"),
             "{e}"
         );
         std::fs::write(&p, "1.0 rgb/1.png extra\n").unwrap();

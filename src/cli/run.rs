@@ -160,6 +160,21 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         ..base
     };
     let output = run_slam(&seq, config, a.backend(), a.max_frames, true)?;
+    if output
+        .frames
+        .iter()
+        .all(|f| f.status == FrameStatus::Skipped)
+    {
+        let first = output.frames.first();
+        anyhow::bail!(
+            "none of the {} frames could be read, nothing written (frame {}: {})",
+            output.frames.len(),
+            first.map_or(0, |f| f.index),
+            first
+                .and_then(|f| f.skip_reason.as_deref())
+                .unwrap_or("no frames")
+        );
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let traj = output.trajectory()?;
     write_tum_trajectory(&a.out.join("trajectory.tum"), &traj)?;
