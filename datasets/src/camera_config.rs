@@ -5,6 +5,10 @@
 //! (raw depth units per metre: 5000 for TUM's 16-bit PNGs) and optionally
 //! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0). Unknown keys
 //! are ignored, so a file can carry notes or extra calibration.
+//!
+//! A `.yaml`/`.yml` file in ORB-SLAM2 or ORB-SLAM3 settings format (`%YAML:1.0`,
+//! `Camera.fx` or `Camera1.fx`, `DepthMapFactor`) is read too; see
+//! [`crate::orbslam_settings`] for the keys.
 
 use crate::error::DatasetError;
 use serde::{Deserialize, Serialize};
@@ -92,6 +96,11 @@ impl CameraConfig {
             ));
         }
         let text = crate::text::read_text(path)?;
+        if matches!(ext.as_str(), "yaml" | "yml")
+            && crate::orbslam_settings::is_orbslam_settings(&text)
+        {
+            return Self::from_orbslam(&text, path);
+        }
         let file: CameraFile = match ext.as_str() {
             "json" => serde_json::from_str(&text).map_err(|e| {
                 DatasetError::parse(path, e.line(), format!("invalid camera JSON: {e}"))
@@ -107,6 +116,36 @@ impl CameraConfig {
         };
         file.into_config()
             .map_err(|message| DatasetError::invalid(path, message))
+    }
+
+    /// An ORB-SLAM2/3 settings file's camera.
+    fn from_orbslam(text: &str, path: &Path) -> Result<Self, DatasetError> {
+        let c = crate::orbslam_settings::parse(text).map_err(|(line, message)| match line {
+            0 => DatasetError::invalid(path, format!("ORB-SLAM settings: {message}")),
+            l => DatasetError::parse(path, l, format!("ORB-SLAM settings: {message}")),
+        })?;
+        let (width, height) = c.size.unwrap_or_else(|| {
+            tracing::warn!(
+                "{}: no Camera.width/height (ORB-SLAM2 files have none): assuming 640x480; \
+                 a frame of another size is an error",
+                path.display()
+            );
+            (640, 480)
+        });
+        let [fx, fy, cx, cy] = c.intrinsics;
+        let distortion = (c.distortion != [0.0; 5]).then(|| c.distortion.to_vec());
+        CameraFile {
+            fx,
+            fy,
+            cx,
+            cy,
+            width,
+            height,
+            depth_scale: c.depth_scale,
+            distortion,
+        }
+        .into_config()
+        .map_err(|message| DatasetError::invalid(path, message))
     }
 
     /// The camera file form of this configuration, as pretty JSON.
@@ -223,6 +262,38 @@ mod tests {
         // Round trip through the JSON writer.
         let back = write("back.json", &c.to_json());
         assert_eq!(CameraConfig::from_file(&back).unwrap(), c);
+    }
+
+    #[test]
+    fn orbslam_settings_give_the_same_camera_as_the_presets() {
+        // ORB-SLAM2's TUM3.yaml (no image size, no distortion) and an ORB-SLAM3 1.0 file.
+        let orb2 = write(
+            "TUM3.yaml",
+            "%YAML:1.0\n# c\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\n\
+             Camera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\nDepthMapFactor: 5000.0\n",
+        );
+        assert_eq!(
+            CameraConfig::from_file(&orb2).unwrap(),
+            CameraConfig::preset("fr3").unwrap()
+        );
+        let orb3 = write(
+            "TUM1.yaml",
+            "%YAML:1.0\nFile.version: \"1.0\"\nCamera.type: \"PinHole\"\nCamera1.fx: 517.306408\n\
+             Camera1.fy: 516.469215\nCamera1.cx: 318.643040\nCamera1.cy: 255.313989\n\
+             Camera1.k1: 0.262383\nCamera1.k2: -0.953104\nCamera1.p1: -0.005358\n\
+             Camera1.p2: 0.002628\nCamera1.k3: 1.163314\nCamera.width: 640\nCamera.height: 480\n\
+             RGBD.DepthMapFactor: 5000.0\n",
+        );
+        assert_eq!(
+            CameraConfig::from_file(&orb3).unwrap(),
+            CameraConfig::preset("fr1").unwrap()
+        );
+        let bad = write("bad.yaml", "%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: x\n");
+        let e = CameraConfig::from_file(&bad).unwrap_err().to_string();
+        assert!(
+            e.contains("bad.yaml:3: ORB-SLAM settings: Camera.fy: 'x' is not a finite number"),
+            "{e}"
+        );
     }
 
     #[test]

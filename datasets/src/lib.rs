@@ -19,6 +19,7 @@ pub mod camera_config;
 pub mod data_root;
 pub mod error;
 pub mod grid_file;
+pub mod orbslam_settings;
 pub mod png_io;
 pub mod synth;
 pub mod text;
