@@ -5,14 +5,15 @@ use std::path::PathBuf;
 /// An error reading or writing a dataset file.
 #[derive(Debug, thiserror::Error)]
 pub enum DatasetError {
-    /// The operating system refused to read or write a file.
-    #[error("{}: {source}", path.display())]
+    /// The operating system refused to read or write a file. The message already holds
+    /// the OS error, so it is not also exposed as the error's source (which would print it
+    /// twice in a chain).
+    #[error("{}: {error}", path.display())]
     Io {
         /// The file concerned.
         path: PathBuf,
         /// The underlying error.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// A line of a text file could not be understood.
     #[error("{}:{line}: {message}", path.display())]
@@ -47,7 +48,7 @@ impl DatasetError {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
-            source,
+            error: source,
         }
     }
 

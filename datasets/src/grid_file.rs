@@ -174,6 +174,13 @@ pub fn write_header(path: &Path, geometry: &GridGeometry) -> Result<(), DatasetE
 /// Reads a layer and its header: `header` defaults to the `.json` with the layer's stem
 /// (`terrain.npy` -> `terrain.json`), else `grid.json` in the same folder.
 pub fn read_grid(npy: &Path, header: Option<&Path>) -> Result<Grid<f32>, DatasetError> {
+    // The layer first: a missing .npy is the error to report, not its missing header.
+    if !npy.is_file() {
+        return Err(DatasetError::io(
+            npy,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
+        ));
+    }
     let header_path = match header {
         Some(h) => h.to_path_buf(),
         None => {
@@ -356,6 +363,12 @@ mod tests {
         let back = read_grid(&dir.join("terrain.npy"), None).unwrap();
         assert_eq!(back, grid);
         let e = read_grid(&dir.join("missing.npy"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("missing.npy: no such file"), "{e}");
+        std::fs::copy(dir.join("terrain.npy"), dir.join("lone.npy")).unwrap();
+        std::fs::remove_file(dir.join("terrain.json")).unwrap();
+        let e = read_grid(&dir.join("lone.npy"), None)
             .unwrap_err()
             .to_string();
         assert!(e.contains("grid.json"), "{e}");

@@ -65,6 +65,18 @@ pub enum CameraSource {
     FolderName(&'static str),
 }
 
+impl std::fmt::Display for CameraSource {
+    /// For logs and reports: `fr3 (requested)`, `camera.json in the folder`, `fr3 (from
+    /// the folder name)`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CameraSource::Requested(spec) => write!(f, "{spec} (requested)"),
+            CameraSource::SequenceFile(p) => write!(f, "{} (the folder's)", p.display()),
+            CameraSource::FolderName(name) => write!(f, "{name} (from the folder name)"),
+        }
+    }
+}
+
 /// An opened TUM RGB-D sequence: its associated frames, camera and ground truth.
 #[derive(Debug, Clone)]
 pub struct TumSequence {

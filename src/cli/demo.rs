@@ -81,6 +81,7 @@ fn f(v: &Value, path: &[&str]) -> f64 {
 
 pub fn run(a: DemoArgs) -> Result<()> {
     let started = std::time::Instant::now();
+    crate::cli::check_out_dir("--out", &a.out)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     for sub in ["sequence", "slam", "map_groundtruth", "map_slam"] {
         let p = a.out.join(sub);

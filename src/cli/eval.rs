@@ -19,12 +19,16 @@ pub enum EvalCommand {
 /// Options shared by both metrics.
 #[derive(Debug, Args)]
 pub struct CommonArgs {
+    /// Ground truth and estimate as positional arguments, in that order (evo's habit:
+    /// `stride eval ate GT EST`); or use --gt and --est.
+    #[arg(value_name = "GT EST", num_args = 0..=2, conflicts_with_all = ["gt", "est"])]
+    files: Vec<PathBuf>,
     /// Ground-truth trajectory (TUM format: t tx ty tz qx qy qz qw).
     #[arg(long)]
-    gt: PathBuf,
+    gt: Option<PathBuf>,
     /// Estimated trajectory (TUM format).
     #[arg(long)]
-    est: PathBuf,
+    est: Option<PathBuf>,
     /// Whose semantics to reproduce: evo (evo_ape/evo_rpe) or tum (evaluate_ate.py /
     /// evaluate_rpe.py --fixed_delta). See docs/evaluation.md.
     #[arg(long, default_value = "evo")]
@@ -47,7 +51,7 @@ pub struct CommonArgs {
     /// Print exactly one JSON object instead of the table.
     #[arg(long)]
     json: bool,
-    /// Write the plots as SVG to this file.
+    /// Write the plots as SVG to this file (it must end in .svg).
     #[arg(long, value_name = "FILE.svg")]
     plot: Option<PathBuf>,
     /// Write report.md, report.html and the plots into this folder.
@@ -86,14 +90,50 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
     }
 }
 
+impl CommonArgs {
+    /// The ground truth and estimate files, from --gt/--est or the two positional
+    /// arguments.
+    fn paths(&self) -> Result<(&Path, &Path)> {
+        match (self.files.as_slice(), &self.gt, &self.est) {
+            ([], Some(gt), Some(est)) => Ok((gt, est)),
+            ([gt, est], None, None) => Ok((gt, est)),
+            _ => anyhow::bail!(
+                "give the ground truth and the estimate, as `GT EST` or as `--gt GT --est EST`"
+            ),
+        }
+    }
+
+    /// Checks the outputs before any work: a plot must be asked for as .svg.
+    fn check_outputs(&self) -> Result<()> {
+        if let Some(p) = &self.plot {
+            let ext = p
+                .extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase());
+            if ext.as_deref() != Some("svg") {
+                anyhow::bail!(
+                    "--plot {}: plots are written as SVG; give a file name ending in .svg \
+                     (a browser or `rsvg-convert` turns it into PNG)",
+                    p.display()
+                );
+            }
+        }
+        match &self.report {
+            Some(d) => crate::cli::check_out_dir("--report", d),
+            None => Ok(()),
+        }
+    }
+}
+
 fn load(
     c: &CommonArgs,
 ) -> Result<(
     stride_core::trajectory::Trajectory,
     stride_core::trajectory::Trajectory,
 )> {
-    let gt = read_tum_trajectory(&c.gt).context("reading the ground truth (--gt)")?;
-    let est = read_tum_trajectory(&c.est).context("reading the estimate (--est)")?;
+    c.check_outputs()?;
+    let (gt, est) = c.paths()?;
+    let gt = read_tum_trajectory(gt).context("reading the ground truth")?;
+    let est = read_tum_trajectory(est).context("reading the estimate")?;
     Ok((gt, est))
 }
 
@@ -121,10 +161,11 @@ fn emit(
     }
     if let Some(dir) = &c.report {
         let mut report = Report::new(title);
+        let (gt, est) = c.paths()?;
         report.paragraph(format!(
             "Ground truth: {}. Estimate: {}.",
-            c.gt.display(),
-            c.est.display()
+            gt.display(),
+            est.display()
         ));
         fill_report(&mut report);
         report.code(std::env::args().collect::<Vec<_>>().join(" "));

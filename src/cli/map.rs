@@ -52,10 +52,10 @@ pub struct MapArgs {
     #[arg(long, value_enum, default_value = "stack")]
     pub mapper: MapperArg,
     /// Cell size (m).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub resolution: f64,
     /// Side of the moving window (m).
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
     pub size: f64,
     /// Ground-truth elevation (.npy with its .json or grid.json beside it) to evaluate
     /// against [default: the folder's terrain.npy when present].
@@ -64,7 +64,12 @@ pub struct MapArgs {
     /// Perturb the poses with a random-walk drift of this many percent of the distance
     /// travelled (and 1 degree of yaw per metre per percent), to see how the maps degrade
     /// with realistic odometry.
-    #[arg(long, value_name = "PERCENT", default_value_t = 0.0)]
+    #[arg(
+        long,
+        value_name = "PERCENT",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     pub drift: f64,
     /// Seed of the drift.
     #[arg(long, default_value_t = 1)]
@@ -381,6 +386,7 @@ pub fn run(a: MapArgs) -> Result<()> {
 /// Maps the sequence and writes everything into `a.out`; returns the report.json object,
 /// the runs and the frame counts.
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
+    crate::cli::check_out_dir("--out", &a.out)?;
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),

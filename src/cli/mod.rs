@@ -31,7 +31,7 @@ enum Command {
     /// Compare an estimated trajectory with ground truth (ATE, RPE).
     #[command(subcommand)]
     Eval(eval::EvalCommand),
-    /// Run the SLAM pipeline (visual odometry for now) on an RGB-D sequence.
+    /// Run the SLAM (visual odometry and a bundle-adjusting back end) on an RGB-D sequence.
     Run(run::RunArgs),
     /// Build an elevation map of a sequence from its depth images and known poses.
     Map(map::MapArgs),
@@ -54,6 +54,15 @@ macro_rules! outln {
     }};
 }
 
+/// Fails at once, before any work, when an output folder given as `flag` exists as
+/// something other than a folder.
+pub fn check_out_dir(flag: &str, dir: &std::path::Path) -> Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!("{flag} {}: exists and is not a folder", dir.display());
+    }
+    Ok(())
+}
+
 /// Logs go to stderr so that stdout carries only results (tables or JSON).
 pub fn init_logging(verbose: u8, quiet: bool) {
     let default = match (quiet, verbose) {
@@ -67,6 +76,7 @@ pub fn init_logging(verbose: u8, quiet: bool) {
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .without_time()
         .try_init();

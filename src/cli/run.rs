@@ -137,6 +137,7 @@ pub fn run(a: RunArgs) -> Result<()> {
 
 /// Runs and writes everything into `a.out`; returns the summary.
 pub fn execute(a: &RunArgs) -> Result<RunSummary> {
+    crate::cli::check_out_dir("--out", &a.out)?;
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -144,7 +145,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     )
     .context("opening the dataset")?;
     tracing::info!(
-        "{} frames from {} ({:?})",
+        "{} frames from {}, camera {}",
         seq.len(),
         a.dataset.display(),
         seq.camera_source
@@ -363,7 +364,7 @@ fn report_json(
     }
     m.insert("seed".into(), json!(a.seed));
     m.insert("dataset".into(), json!(a.dataset.display().to_string()));
-    m.insert("camera".into(), json!(format!("{:?}", seq.camera_source)));
+    m.insert("camera".into(), json!(seq.camera_source.to_string()));
     m.insert(
         "world_frame".into(),
         json!("the first frame's camera frame (x right, y down, z forward)"),

@@ -200,6 +200,7 @@ pub fn synthesize(config: &SynthConfig, out: &Path, overwrite: bool) -> Result<S
 }
 
 pub fn run(a: SynthArgs) -> Result<()> {
+    crate::cli::check_out_dir("--out", &a.out)?;
     let config = a.config()?;
     let summary = synthesize(&config, &a.out, a.overwrite)?;
     let mut r = summary.render_s.clone();

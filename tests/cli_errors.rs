@@ -1,0 +1,119 @@
+//! Errors a new user meets, from a review of the CLI: each names the right thing once, and
+//! comes before any work is done.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
+
+mod common;
+
+use common::{data, run, run_json};
+
+/// Runs stride, expects failure, and returns stderr.
+fn fails(args: &[&str]) -> String {
+    let out = run(args);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "stride {args:?} should fail");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+#[test]
+fn eval_takes_positional_files_like_evo() {
+    let (Some(gt), Some(est)) = (
+        data("trajectories/freiburg1_xyz-groundtruth.txt"),
+        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
+    ) else {
+        return;
+    };
+    let (gt, est) = (gt.to_str().unwrap(), est.to_str().unwrap());
+    let named = run_json(&["eval", "ate", "--gt", gt, "--est", est, "--json"]);
+    let positional = run_json(&["eval", "ate", gt, est, "--json"]);
+    assert_eq!(named, positional);
+    let err = fails(&["eval", "ate", gt]);
+    assert!(
+        err.contains("give the ground truth and the estimate"),
+        "{err}"
+    );
+    let err = fails(&["eval", "ate", gt, est, "--gt", gt]);
+    assert!(err.contains("cannot be used with"), "{err}");
+    // A plot is SVG: asking for .png is an error before any work, and writes nothing.
+    let tmp = tempfile::tempdir().unwrap();
+    let png = tmp.path().join("plot.png");
+    let err = fails(&["eval", "ate", gt, est, "--plot", png.to_str().unwrap()]);
+    assert!(err.contains("plots are written as SVG"), "{err}");
+    assert!(!png.exists());
+}
+
+#[test]
+fn a_missing_file_is_named_once_with_its_os_error_once() {
+    let err = fails(&["eval", "ate", "/nonexistent/gt.txt", "/nonexistent/est.txt"]);
+    assert!(err.contains("/nonexistent/gt.txt"), "{err}");
+    assert_eq!(err.matches("os error 2").count(), 1, "{err}");
+    assert!(
+        !err.contains('\u{1b}'),
+        "no colour codes when stderr is not a terminal"
+    );
+}
+
+#[test]
+fn outputs_and_ranges_are_checked_before_the_work() {
+    let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let teddy = teddy.to_str().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("a_file");
+    std::fs::write(&file, "x").unwrap();
+    let f = file.to_str().unwrap();
+    for args in [
+        vec!["run", "--dataset", teddy, "--out", f],
+        vec!["map", "--dataset", teddy, "--out", f],
+        vec!["synth", "--out", f, "--frames", "2"],
+        vec!["demo", "--out", f],
+    ] {
+        let err = fails(&args);
+        assert!(
+            err.contains(&format!("--out {f}: exists and is not a folder")),
+            "{args:?}: {err}"
+        );
+    }
+    let out = tmp.path().join("m");
+    let o = out.to_str().unwrap();
+    let err = fails(&["map", "--dataset", teddy, "--out", o, "--resolution", "-1"]);
+    assert!(
+        err.contains("--resolution -1") && err.contains("must be positive"),
+        "{err}"
+    );
+    let err = fails(&[
+        "map",
+        "--dataset",
+        teddy,
+        "--out",
+        o,
+        "--gt-terrain",
+        "/nonexistent/nope.npy",
+    ]);
+    assert!(err.contains("/nonexistent/nope.npy"), "{err}");
+    assert!(!err.contains("grid.json"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn the_camera_is_reported_by_name_not_as_a_debug_string() {
+    let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("r");
+    common::run_ok(&[
+        "run",
+        "--dataset",
+        teddy.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--vo-only",
+        "--max-frames",
+        "5",
+    ]);
+    let r = common::report(&out);
+    assert_eq!(r["camera"], "fr3 (from the folder name)");
+}
