@@ -6,6 +6,7 @@
 mod common;
 
 use common::data;
+use stride_datasets::stream::StreamError;
 use stride_datasets::tum::{AssociationOptions, CameraSource, TumSequence};
 
 #[test]
@@ -90,7 +91,9 @@ fn missing_corrupt_and_wrongly_sized_frames_are_reported_and_skipped() {
     let results: Vec<_> = copy.stream(None, 2).collect();
     assert_eq!(results.len(), 4);
     assert!(results[0].is_ok() && results[3].is_ok());
-    let e1 = results[1].as_ref().unwrap_err();
+    let Err(StreamError::Frame(e1)) = &results[1] else {
+        panic!("frame 1 fails");
+    };
     assert_eq!(e1.index, 1);
     assert!(
         e1.error
@@ -99,7 +102,9 @@ fn missing_corrupt_and_wrongly_sized_frames_are_reported_and_skipped() {
         "{}",
         e1.error
     );
-    let e2 = results[2].as_ref().unwrap_err();
+    let Err(StreamError::Frame(e2)) = &results[2] else {
+        panic!("frame 2 fails");
+    };
     assert!(e2.error.to_string().contains("depth/"), "{}", e2.error);
 
     std::fs::write(

@@ -21,6 +21,7 @@ pub mod error;
 pub mod grid_file;
 pub mod orbslam_settings;
 pub mod png_io;
+pub mod stream;
 pub mod synth;
 pub mod text;
 pub mod trajectory_file;

@@ -12,11 +12,10 @@
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use crate::png_io::{decode_depth, decode_rgb};
+use crate::stream::{DecodedFrame, FrameFailure, FrameStream};
 use crate::text::{data_lines, parse_finite, read_text};
 use crate::trajectory_file::read_tum_trajectory;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc::{sync_channel, Receiver};
-use std::thread::JoinHandle;
 use std::time::Instant;
 use stride_core::frame::RgbdFrame;
 use stride_core::time::associate_greedy;
@@ -264,34 +263,26 @@ impl TumSequence {
 
     /// Decodes frames `0..max_frames` (all when `None`) on a background thread, keeping up
     /// to `prefetch` decoded frames ready. A frame that fails to load is reported in place and
-    /// the stream continues with the next one.
+    /// the stream continues with the next one; a decoder thread that cannot start or dies
+    /// ends the stream with [`StreamError::Stopped`].
     pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
         let n = max_frames.map_or(self.frames.len(), |m| m.min(self.frames.len()));
         let entries: Vec<FrameEntry> = self.frames.iter().take(n).cloned().collect();
         let camera = self.camera;
-        let (tx, rx) = sync_channel(prefetch.max(1));
-        let handle = std::thread::Builder::new()
-            .name("stride-decode".into())
-            .spawn(move || {
-                for (index, entry) in entries.iter().enumerate() {
-                    let start = Instant::now();
-                    let item = load_entry(index, entry, &camera)
-                        .map(|frame| DecodedFrame {
-                            frame,
-                            decode_s: start.elapsed().as_secs_f64(),
-                        })
-                        .map_err(|error| FrameFailure { index, error });
-                    if tx.send(item).is_err() {
-                        break; // the consumer hung up
-                    }
+        FrameStream::spawn(&self.dir, n, prefetch, move |tx| {
+            for (index, entry) in entries.iter().enumerate() {
+                let start = Instant::now();
+                let item = load_entry(index, entry, &camera)
+                    .map(|frame| DecodedFrame {
+                        frame,
+                        decode_s: start.elapsed().as_secs_f64(),
+                    })
+                    .map_err(|error| FrameFailure { index, error });
+                if tx.send(item).is_err() {
+                    break; // the consumer hung up
                 }
-            })
-            .ok();
-        FrameStream {
-            rx,
-            _handle: handle,
-            len: n,
-        }
+            }
+        })
     }
 }
 
@@ -325,51 +316,6 @@ fn load_entry(
         rgb,
         depth_m,
     })
-}
-
-/// A frame decoded by [`FrameStream`], with the time decoding took.
-#[derive(Debug, Clone)]
-pub struct DecodedFrame {
-    /// The frame.
-    pub frame: RgbdFrame,
-    /// Wall time spent reading and decoding both PNGs (s), on the decoder thread.
-    pub decode_s: f64,
-}
-
-/// A frame [`FrameStream`] could not load.
-#[derive(Debug)]
-pub struct FrameFailure {
-    /// Index of the frame in the sequence.
-    pub index: usize,
-    /// Why it failed (names the file).
-    pub error: DatasetError,
-}
-
-/// Frames decoded ahead on a background thread; see [`TumSequence::stream`].
-pub struct FrameStream {
-    rx: Receiver<Result<DecodedFrame, FrameFailure>>,
-    _handle: Option<JoinHandle<()>>,
-    len: usize,
-}
-
-impl FrameStream {
-    /// Number of frames the stream will yield (successes and failures).
-    pub fn len(&self) -> usize {
-        self.len
-    }
-
-    /// True when the stream yields nothing.
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-}
-
-impl Iterator for FrameStream {
-    type Item = Result<DecodedFrame, FrameFailure>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        self.rx.recv().ok()
-    }
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ use stride_core::grid::Grid;
 use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
+use stride_datasets::stream::StreamError;
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
@@ -223,11 +224,12 @@ pub fn map_sequence(
         pb.inc(1);
         let decoded = match item {
             Ok(d) => d,
-            Err(f) => {
+            Err(StreamError::Frame(f)) => {
                 tracing::warn!("frame {} skipped: {}", f.index, f.error);
                 counts.unreadable += 1;
                 continue;
             }
+            Err(StreamError::Stopped(e)) => return Err(e.into()),
         };
         let frame = &decoded.frame;
         let Some(pose) = poses.interpolate(frame.t_depth_s) else {

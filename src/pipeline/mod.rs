@@ -29,6 +29,7 @@ use std::time::Instant;
 use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
+use stride_datasets::stream::StreamError;
 use stride_datasets::tum::TumSequence;
 use stride_frontend::{StageTimes, TrackingStatus, VisualOdometry, VoConfig};
 
@@ -215,13 +216,14 @@ pub fn run_slam(
                     )
                 })?;
             }
-            Err(failure) => {
+            Err(StreamError::Frame(failure)) => {
                 let t_s = seq
                     .frames
                     .get(failure.index)
                     .map_or(f64::NAN, |e| e.t_rgb_s);
                 slam.skip(failure.index, t_s, failure.error.to_string())?;
             }
+            Err(StreamError::Stopped(e)) => return Err(e.into()),
         }
         pb.inc(1);
     }
