@@ -264,7 +264,7 @@ impl TumSequence {
     /// Decodes frames `0..max_frames` (all when `None`) on a background thread, keeping up
     /// to `prefetch` decoded frames ready. A frame that fails to load is reported in place and
     /// the stream continues with the next one; a decoder thread that cannot start or dies
-    /// ends the stream with [`StreamError::Stopped`].
+    /// ends the stream with [`crate::stream::StreamError::Stopped`].
     pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
         let n = max_frames.map_or(self.frames.len(), |m| m.min(self.frames.len()));
         let entries: Vec<FrameEntry> = self.frames.iter().take(n).cloned().collect();

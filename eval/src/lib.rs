@@ -2,8 +2,8 @@
 //!
 //! Trajectory metrics that agree with the tools the field trusts, to the printed digit:
 //!
-//! * [`ate`]: absolute trajectory error (evo's APE, TUM's `evaluate_ate.py`).
-//! * [`rpe`]: relative pose error (evo's RPE, TUM's `evaluate_rpe.py --fixed_delta`).
+//! * [`ate()`]: absolute trajectory error (evo's APE, TUM's `evaluate_ate.py`).
+//! * [`rpe()`]: relative pose error (evo's RPE, TUM's `evaluate_rpe.py --fixed_delta`).
 //! * [`options::Preset`] picks whose semantics to follow; `docs/evaluation.md` lists every
 //!   place where evo and the TUM tools differ and what each preset does there.
 //! * [`blur`]: image sharpness metrics for the gait-dependent motion-blur study (paper 004).

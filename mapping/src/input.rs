@@ -285,7 +285,7 @@ impl Rays<'_> {
 
 /// Why a measurement was dropped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Reason {
+pub(crate) enum Reason {
     NoReturn,
     NonFinite,
     OutOfRange,
@@ -294,7 +294,7 @@ enum Reason {
 }
 
 impl Rejections {
-    fn count(&mut self, r: Reason) {
+    pub(crate) fn count(&mut self, r: Reason) {
         match r {
             Reason::NoReturn => self.no_return += 1,
             Reason::NonFinite => self.non_finite += 1,
@@ -307,7 +307,7 @@ impl Rejections {
 
 /// The sensor pose as plain numbers for the per-point transform.
 #[derive(Debug, Clone, Copy)]
-struct Placement {
+pub(crate) struct Placement {
     rot: nalgebra::Matrix3<f64>,
     trans: Vector3<f64>,
     /// The map's z axis in the sensor frame (third row of the rotation).
@@ -316,7 +316,7 @@ struct Placement {
 }
 
 impl Placement {
-    fn new(t: &Isometry3<f64>, range: (f64, f64)) -> Self {
+    pub(crate) fn new(t: &Isometry3<f64>, range: (f64, f64)) -> Self {
         let rot = t.rotation.to_rotation_matrix().into_inner();
         Self {
             rot,
@@ -327,7 +327,7 @@ impl Placement {
     }
 
     #[inline]
-    fn place(&self, p: Vector3<f64>, var: f64) -> Result<MapPoint, Reason> {
+    pub(crate) fn place(&self, p: Vector3<f64>, var: f64) -> Result<MapPoint, Reason> {
         if !(var.is_finite() && var > 0.0) {
             return Err(Reason::BadVariance);
         }
@@ -343,7 +343,7 @@ impl Placement {
     /// A depth pixel `(u, v)` (px) with undistorted normalised coordinates `(xn, yn)` and
     /// depth `d` (m).
     #[inline]
-    fn pixel<M: HeightModel + ?Sized>(
+    pub(crate) fn pixel<M: HeightModel + ?Sized>(
         &self,
         model: &M,
         camera: &PinholeCamera,
@@ -379,7 +379,7 @@ impl Placement {
 
     /// A sensor-frame point with its covariance.
     #[inline]
-    fn point<M: HeightModel + ?Sized>(
+    pub(crate) fn point<M: HeightModel + ?Sized>(
         &self,
         model: &M,
         p: &Point3<f64>,
@@ -434,14 +434,14 @@ fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: 
 
 /// One slice of rows of a depth image and what is needed to turn its pixels into map
 /// points.
-struct DepthSlice<'a, M: ?Sized> {
-    depth: &'a DepthImage,
-    camera: &'a PinholeCamera,
-    rays: Rays<'a>,
-    rows: std::ops::Range<usize>,
-    edge: Option<&'a EdgeFilter>,
-    place: &'a Placement,
-    model: &'a M,
+pub(crate) struct DepthSlice<'a, M: ?Sized> {
+    pub(crate) depth: &'a DepthImage,
+    pub(crate) camera: &'a PinholeCamera,
+    pub(crate) rays: Rays<'a>,
+    pub(crate) rows: std::ops::Range<usize>,
+    pub(crate) edge: Option<&'a EdgeFilter>,
+    pub(crate) place: &'a Placement,
+    pub(crate) model: &'a M,
 }
 
 /// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
@@ -460,7 +460,7 @@ struct RowPoint {
 /// vectorise, then a pass that hands valid points (or the reason for an invalid one) to
 /// `sink`.
 #[inline]
-fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Reason>)>(
+pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Reason>)>(
     s: DepthSlice<'_, M>,
     mut sink: S,
 ) {
@@ -557,288 +557,10 @@ fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Reason>)>(
     }
 }
 
-/// A measurement assigned to a cell of a map window: the cell's storage index, the height
-/// (m, map frame) and its variance (m²).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct CellPoint {
-    /// Storage index of the cell in the window.
-    pub cell: u32,
-    /// Height (m, map frame, up).
-    pub z_m: f32,
-    /// Height variance (m²).
-    pub var_m2: f32,
-}
-
-/// Smallest height variance handed to a mapper (m²); smaller ones are raised to it.
-pub const VAR_MIN_M2: f32 = 1e-10;
-/// Largest height variance handed to a mapper (m²); larger ones are lowered to it.
-pub const VAR_MAX_M2: f32 = 1e10;
-
-/// Measurements are prepared in this many slices of the input (rows of a depth image), a
-/// number that does not depend on the thread count so that results never do.
-pub const SLICES: usize = 16;
-
-/// One frame's measurements, grouped by band of storage cells (see [`prepare_binned`]).
-#[derive(Debug, Clone, Default)]
-pub struct Binned {
-    /// `[slice][band]`, each list in measurement order.
-    lists: Vec<Vec<Vec<CellPoint>>>,
-    rejections: Vec<Rejections>,
-}
-
-impl Binned {
-    /// The measurements of band `b`, in measurement order (pixel order for depth images).
-    pub fn band(&self, b: usize) -> impl Iterator<Item = &CellPoint> + '_ {
-        self.lists
-            .iter()
-            .flat_map(move |slice| slice.get(b).into_iter().flatten())
-    }
-}
-
-/// Transforms a frame's measurements into map-frame heights with height variances and
-/// assigns each to its cell: `locate(x, y)` gives the storage index of the cell containing
-/// map-frame `(x, y)` (m) and its band (below `bands`), or `None` outside the window (see
-/// [`crate::window::Window::band_indexer`]). Runs in parallel over [`SLICES`] slices of the input;
-/// within a band the measurements keep their input order. Invalid measurements are
-/// dropped and counted by reason (including `outside_window`).
-pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> + Sync>(
-    frame: &SensorFrame<'_>,
-    model: &M,
-    rays: &mut RayCache,
-    locate: L,
-    bands: usize,
-    edge: Option<&EdgeFilter>,
-    out: &mut Binned,
-) -> Rejections {
-    let t = frame.map_from_sensor;
-    out.lists.resize_with(SLICES, Vec::new);
-    out.rejections.clear();
-    out.rejections.resize(SLICES, Rejections::default());
-    for slice in &mut out.lists {
-        slice.resize_with(bands, Vec::new);
-        slice.iter_mut().for_each(Vec::clear);
-    }
-    if !frame.pose_is_finite() {
-        return Rejections {
-            bad_pose: frame.len(),
-            ..Default::default()
-        };
-    }
-    let place = Placement::new(&t, model.range_m());
-    let push = |res: Result<MapPoint, Reason>,
-                lists: &mut Vec<Vec<CellPoint>>,
-                rej: &mut Rejections| match res {
-        Ok(p) => match locate(p.x, p.y) {
-            Some((cell, band)) => {
-                if let Some(list) = lists.get_mut(band) {
-                    list.push(CellPoint {
-                        cell: cell as u32,
-                        z_m: p.z as f32,
-                        // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
-                        var_m2: (p.var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
-                    });
-                } else {
-                    rej.outside_window += 1;
-                }
-            }
-            None => rej.outside_window += 1,
-        },
-        Err(r) => rej.count(r),
-    };
-    match frame.cloud {
-        Cloud::Depth { depth_m, camera } => {
-            let h = depth_m.height() as usize;
-            let rays = rays.rays(camera);
-            let rows_per_slice = h.div_ceil(SLICES).max(1);
-            out.lists
-                .par_iter_mut()
-                .zip(out.rejections.par_iter_mut())
-                .enumerate()
-                .for_each(|(s, (lists, rej))| {
-                    let rows = (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h);
-                    depth_slice(
-                        DepthSlice {
-                            depth: depth_m,
-                            camera,
-                            rays,
-                            rows,
-                            edge,
-                            place: &place,
-                            model,
-                        },
-                        |res| push(res, lists, rej),
-                    );
-                });
-        }
-        Cloud::Points {
-            points,
-            covariances,
-        } => {
-            let per_slice = points.len().div_ceil(SLICES).max(1);
-            out.lists
-                .par_iter_mut()
-                .zip(out.rejections.par_iter_mut())
-                .enumerate()
-                .for_each(|(s, (lists, rej))| {
-                    for i in (s * per_slice)..((s + 1) * per_slice).min(points.len()) {
-                        let res = match points.get(i) {
-                            Some(p) => place.point(model, p, covariances.get(i)),
-                            None => Err(Reason::NonFinite),
-                        };
-                        push(res, lists, rej);
-                    }
-                });
-        }
-    }
-    let mut rej = Rejections::default();
-    for r in &out.rejections {
-        rej.add(r);
-    }
-    rej
-}
-
-/// A frame's measurements as map-frame points (`None` where dropped), in input order, with
-/// the counts of what was dropped (`outside_window` stays 0: there is no window here).
-/// For exporting clouds and for tests; the mappers use [`prepare_binned`].
-pub fn to_map_points<M: HeightModel + ?Sized>(
-    frame: &SensorFrame<'_>,
-    model: &M,
-) -> (Vec<Option<MapPoint>>, Rejections) {
-    let mut rej = Rejections::default();
-    let t = frame.map_from_sensor;
-    if !frame.pose_is_finite() {
-        rej.bad_pose = frame.len();
-        return (vec![None; frame.len()], rej);
-    }
-    let place = Placement::new(&t, model.range_m());
-    let results: Vec<Result<MapPoint, Reason>> = match frame.cloud {
-        Cloud::Depth { depth_m, camera } => {
-            let w = (depth_m.width() as usize).max(1);
-            let mut cache = RayCache::default();
-            let rays = cache.rays(camera);
-            let mut row = Vec::new();
-            depth_m
-                .as_slice()
-                .iter()
-                .enumerate()
-                .map(|(i, &d)| {
-                    let (u, v) = (i % w, i / w);
-                    if u == 0 {
-                        rays.row(v, w, &mut row);
-                    }
-                    place.pixel(
-                        model,
-                        camera,
-                        u,
-                        v,
-                        row.get(u).copied().unwrap_or((f64::NAN, f64::NAN)),
-                        d,
-                    )
-                })
-                .collect()
-        }
-        Cloud::Points {
-            points,
-            covariances,
-        } => points
-            .iter()
-            .enumerate()
-            .map(|(i, p)| place.point(model, p, covariances.get(i)))
-            .collect(),
-    };
-    let pts = results
-        .into_iter()
-        .map(|r| match r {
-            Ok(p) => Some(p),
-            Err(e) => {
-                rej.count(e);
-                None
-            }
-        })
-        .collect();
-    (pts, rej)
-}
+pub use crate::binned::{
+    prepare_binned, to_map_points, Binned, CellPoint, SLICES, VAR_MAX_M2, VAR_MIN_M2,
+};
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use approx::assert_relative_eq;
-    use nalgebra::{Translation3, UnitQuaternion};
-
-    #[test]
-    fn pixel_variance_equals_the_full_covariance_projected_on_z() {
-        let cam = PinholeCamera::new(525.0, 520.0, 319.5, 239.5, 640, 480).unwrap();
-        let model = PrimeSenseHeight::default();
-        let t = Isometry3::from_parts(
-            Translation3::new(0.0, 0.0, 0.4),
-            UnitQuaternion::from_euler_angles(-2.0, 0.1, 0.3),
-        );
-        let rot = t.rotation.to_rotation_matrix();
-        let r3 = Vector3::new(rot[(2, 0)], rot[(2, 1)], rot[(2, 2)]);
-        for &(u, v, d) in &[(100.0, 50.0, 1.0), (600.0, 400.0, 3.0), (320.0, 240.0, 2.0)] {
-            let xn = cam.normalized_from_pixel(&nalgebra::Point2::new(u, v));
-            let fast = model.pixel_variance(
-                &cam,
-                &DepthPixel {
-                    u,
-                    v,
-                    xn: xn.x,
-                    yn: xn.y,
-                    d_m: d,
-                },
-                &r3,
-            );
-            let (p, cov) = model.model.point_and_covariance(&cam, u, v, d);
-            let full = model.point_variance(&p, &cov, &r3);
-            assert_relative_eq!(fast, full, max_relative = 1e-12);
-        }
-    }
-
-    #[test]
-    fn bad_measurements_are_dropped_and_counted() {
-        let cam = PinholeCamera::new(10.0, 10.0, 1.5, 1.5, 4, 4).unwrap();
-        let mut depth = DepthImage::filled(4, 4, 1.0);
-        *depth.get_mut(0, 0).unwrap() = 0.0;
-        *depth.get_mut(1, 0).unwrap() = f32::NAN;
-        *depth.get_mut(2, 0).unwrap() = f32::INFINITY;
-        *depth.get_mut(3, 0).unwrap() = 9.0;
-        let frame = SensorFrame {
-            cloud: Cloud::Depth {
-                depth_m: &depth,
-                camera: &cam,
-            },
-            map_from_sensor: Isometry3::identity(),
-            time_s: 0.0,
-        };
-        let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
-        assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 12);
-        assert_eq!((rej.no_return, rej.non_finite, rej.out_of_range), (1, 2, 1));
-        let nan_pose = SensorFrame {
-            map_from_sensor: Isometry3::translation(f64::NAN, 0.0, 0.0),
-            ..frame
-        };
-        let (pts, rej) = to_map_points(&nan_pose, &PrimeSenseHeight::default());
-        assert!(pts.iter().all(|p| p.is_none()) && rej.bad_pose == 16);
-        let points = [
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(0.0, 0.0, 1.0),
-            Point3::new(f64::NAN, 0.0, 1.0),
-        ];
-        let covs = [
-            Matrix3::identity() * 1e-4,
-            Matrix3::zeros(),
-            Matrix3::identity(),
-        ];
-        let frame = SensorFrame {
-            cloud: Cloud::Points {
-                points: &points,
-                covariances: &covs,
-            },
-            map_from_sensor: Isometry3::identity(),
-            time_s: 0.0,
-        };
-        let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
-        assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 1);
-        assert_eq!((rej.bad_variance, rej.non_finite), (1, 1));
-    }
-}
+#[path = "input_tests.rs"]
+mod tests;

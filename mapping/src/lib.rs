@@ -18,9 +18,12 @@
 //! Mapping never depends on the SLAM crates: it takes poses and measurements, so it serves
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
 
+mod binned;
+mod column;
 pub mod fankhauser;
 pub mod input;
 pub mod metrics;
+mod polar;
 pub mod post;
 pub mod stack;
 pub mod stereo;

@@ -1,0 +1,204 @@
+//! One column of the stack map (paper 000, section 3): its voxels with their height
+//! filters, this frame's accumulated measurements, and the cell filter fed by the highest
+//! voxel. The per-column arithmetic of [`crate::stack::StackMapper`], apart from its passes
+//! over the window.
+
+use crate::stack::StackConfig;
+
+pub(crate) const MAX_VOXELS: usize = 6;
+pub(crate) const MAX_ACC: usize = 3;
+
+/// One voxel of a column: its index (height band `[idx, idx + 1) * voxel_height`), height
+/// filter state (m, m²) and the frame that last updated it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Voxel {
+    pub(crate) idx: i32,
+    pub(crate) h: f32,
+    pub(crate) var: f32,
+    pub(crate) last_frame: u32,
+}
+
+/// The frame's measurements of one voxel, combined: sum of weights `1/var` (1/m²) and of
+/// weighted heights above the voxel's bottom (m/m²).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Acc {
+    pub(crate) idx: i32,
+    pub(crate) sw: f32,
+    pub(crate) swh: f32,
+}
+
+/// The voxel stack of a column (kept apart from [`Cell`] so that the passes over the
+/// window touch little memory).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Stack {
+    pub(crate) voxels: [Voxel; MAX_VOXELS],
+}
+
+/// This frame's accumulators of a column (a compact array of their own: the per-point pass
+/// touches only these and the cells).
+pub(crate) type Accs = [Acc; MAX_ACC];
+
+/// A column of the map.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Cell {
+    /// Cell filter state (valid once `has_estimate`): height (m) and variance (m²).
+    pub(crate) h: f32,
+    pub(crate) var: f32,
+    /// Frames that updated the column.
+    pub(crate) updates: u32,
+    /// Frame number (1-based) of the last update; 0 = never.
+    pub(crate) last_frame: u32,
+    pub(crate) vitality: u8,
+    pub(crate) n_voxels: u8,
+    pub(crate) n_acc: u8,
+    pub(crate) has_estimate: bool,
+    pub(crate) established: bool,
+    /// On its band's list of columns whose vitality still decays.
+    pub(crate) pending: bool,
+}
+
+impl Cell {
+    /// True when the column is part of the map.
+    pub(crate) fn mapped(&self) -> bool {
+        self.established && self.has_estimate
+    }
+
+    /// Adds a measurement (height `z` m, weight `w` = 1/variance) to this frame's
+    /// accumulator of voxel `idx`. False when the column already has `MAX_ACC` distinct
+    /// voxels this frame (the measurement is dropped).
+    #[inline]
+    pub(crate) fn accumulate(&mut self, acc: &mut Accs, idx: i32, z_rel: f32, w: f32) -> bool {
+        let n = usize::from(self.n_acc);
+        for a in acc.iter_mut().take(n) {
+            if a.idx == idx {
+                a.sw += w;
+                a.swh += w * z_rel;
+                return true;
+            }
+        }
+        match acc.get_mut(n) {
+            Some(a) => {
+                *a = Acc {
+                    idx,
+                    sw: w,
+                    swh: w * z_rel,
+                };
+                self.n_acc += 1;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Applies the frame's accumulated measurements: voxel filters (eq. 1), vitality, and
+    /// the cell filter (eq. 2) fed by the highest voxel updated now.
+    pub(crate) fn apply(
+        &mut self,
+        st: &mut Stack,
+        acc: &Accs,
+        frame_no: u32,
+        voxel_h: f32,
+        cfg: &StackConfig,
+    ) {
+        let mut highest: Option<(f32, f32, i32)> = None;
+        for a in acc.iter().take(usize::from(self.n_acc)) {
+            let bottom = a.idx as f32 * voxel_h;
+            let (hm, vm) = (bottom + a.swh / a.sw, 1.0 / a.sw);
+            let n = usize::from(self.n_voxels);
+            let slot = match st.voxels.iter().take(n).position(|v| v.idx == a.idx) {
+                Some(s) => s,
+                None => {
+                    // A new voxel starts at its centre with the spread of a uniform value
+                    // within it; a full stack gives up its least recently updated voxel.
+                    let s = if n < MAX_VOXELS {
+                        self.n_voxels += 1;
+                        n
+                    } else {
+                        st.voxels
+                            .iter()
+                            .enumerate()
+                            .min_by_key(|(_, v)| v.last_frame)
+                            .map_or(0, |(i, _)| i)
+                    };
+                    if let Some(v) = st.voxels.get_mut(s) {
+                        *v = Voxel {
+                            idx: a.idx,
+                            h: bottom + 0.5 * voxel_h,
+                            var: voxel_h * voxel_h / 12.0,
+                            last_frame: 0,
+                        };
+                    }
+                    s
+                }
+            };
+            if let Some(v) = st.voxels.get_mut(slot) {
+                // Eq. 1.
+                let k = v.var / (v.var + vm);
+                v.h -= k * (v.h - hm);
+                v.var *= 1.0 - k;
+                v.last_frame = frame_no;
+                if highest.is_none_or(|(_, _, i)| a.idx > i) {
+                    highest = Some((v.h, v.var, a.idx));
+                }
+            }
+        }
+        self.n_acc = 0;
+        let Some((hp, vp, _)) = highest else { return };
+        self.updates += 1;
+        self.last_frame = frame_no;
+        if !self.established {
+            self.vitality = self.vitality.saturating_add(cfg.vitality_increase);
+            if self.vitality > cfg.vitality_threshold {
+                self.established = true;
+            }
+        }
+        if self.established {
+            if self.has_estimate {
+                // Eq. 2.
+                let k = self.var / (self.var + vp);
+                self.h -= k * (self.h - hp);
+                self.var *= 1.0 - k;
+            } else {
+                // No prior: the first established measurement is the estimate.
+                self.h = hp;
+                self.var = vp;
+                self.has_estimate = true;
+            }
+        }
+    }
+
+    /// Removes the voxels above `z` (m) that were not measured in frame `frame_no` and
+    /// lowers the column's height to its highest remaining voxel when that is lower (an
+    /// empty column is forgotten). Returns whether the column changed.
+    pub(crate) fn cut_above(&mut self, st: &mut Stack, z: f32, frame_no: u32) -> bool {
+        if self.h <= z {
+            return false;
+        }
+        let n = usize::from(self.n_voxels);
+        let mut kept = [Voxel::default(); MAX_VOXELS];
+        let mut m = 0;
+        for v in st.voxels.iter().take(n) {
+            if v.h <= z || v.last_frame == frame_no {
+                if let Some(slot) = kept.get_mut(m) {
+                    *slot = *v;
+                    m += 1;
+                }
+            }
+        }
+        let removed = m < n;
+        st.voxels = kept;
+        self.n_voxels = m as u8;
+        match st.voxels.iter().take(m).max_by_key(|v| v.idx).copied() {
+            Some(top) if top.h < self.h => {
+                self.h = top.h;
+                self.var = top.var;
+                true
+            }
+            Some(_) => removed,
+            None => {
+                *self = Cell::default();
+                true
+            }
+        }
+    }
+}

@@ -1,0 +1,300 @@
+//! Tests of `stack`.
+
+use super::*;
+use crate::input::Cloud;
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// A sensor 0.5 m above the origin looking along +x (camera z forward, x right, y down).
+fn sensor_pose() -> Isometry3<f64> {
+    let rot =
+        nalgebra::Rotation3::from_basis_unchecked(&[-Vector3::y(), -Vector3::z(), Vector3::x()]);
+    Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, 0.5),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    )
+}
+
+/// Integrates world points (5 mm standard deviation) as one frame.
+fn integrate(
+    m: &mut dyn ElevationMapper,
+    pose: Isometry3<f64>,
+    world: &[Point3<f64>],
+) -> UpdateStats {
+    let inv = pose.inverse();
+    let pts: Vec<Point3<f64>> = world.iter().map(|p| inv * p).collect();
+    let covs = vec![Matrix3::identity() * 2.5e-5; pts.len()];
+    m.integrate(&SensorFrame {
+        cloud: Cloud::Points {
+            points: &pts,
+            covariances: &covs,
+        },
+        map_from_sensor: pose,
+        time_s: 0.0,
+    })
+}
+
+/// Ground points (z = 0) on a 5 mm lattice over `[x0, x1] x [y0, y1]`.
+fn ground(x0: f64, x1: f64, y0: f64, y1: f64) -> Vec<Point3<f64>> {
+    let n = |a: f64, b: f64| ((b - a) / 0.005) as usize;
+    (0..n(x0, x1))
+        .flat_map(|i| {
+            (0..n(y0, y1))
+                .map(move |j| Point3::new(x0 + 0.005 * i as f64, y0 + 0.005 * j as f64, 0.0))
+        })
+        .collect()
+}
+
+fn height_at(m: &dyn ElevationMapper, x: f64, y: f64) -> Option<f32> {
+    m.export().elevation.at(x, y).filter(|h| !h.is_nan())
+}
+
+/// The first difference between two maps (layer, cell, values), bit for bit.
+fn first_difference(a: &MapLayers, b: &MapLayers) -> Option<String> {
+    if a.elevation.geometry != b.elevation.geometry {
+        return Some(format!(
+            "geometry {:?} vs {:?}",
+            a.elevation.geometry, b.elevation.geometry
+        ));
+    }
+    let layers = [
+        ("elevation", &a.elevation, &b.elevation),
+        ("variance", &a.variance, &b.variance),
+        ("vitality", &a.vitality, &b.vitality),
+        ("updates", &a.updates, &b.updates),
+    ];
+    for (name, x, y) in layers {
+        for (i, (u, v)) in x.as_slice().iter().zip(y.as_slice()).enumerate() {
+            if u.to_bits() != v.to_bits() {
+                return Some(format!("{name}[{i}]: {u} vs {v}"));
+            }
+        }
+    }
+    None
+}
+
+fn config() -> StackConfig {
+    StackConfig {
+        edge_filter: None,
+        see_through_check: false,
+        ..StackConfig::default()
+    }
+}
+
+#[test]
+fn vitality_establishes_a_column_after_three_updates_and_forgets_isolated_ones() {
+    let mut m = StackMapper::new(config());
+    let patch = ground(1.0, 1.05, 0.0, 0.05);
+    let speck = [Point3::new(1.5, 0.5, 0.3)];
+    integrate(
+        &mut m,
+        sensor_pose(),
+        &[patch.clone(), speck.to_vec()].concat(),
+    );
+    assert!(
+        height_at(&m, 1.02, 0.02).is_none(),
+        "V = 3 after one update"
+    );
+    integrate(&mut m, sensor_pose(), &patch);
+    assert!(height_at(&m, 1.02, 0.02).is_none(), "V = 6 after two");
+    integrate(&mut m, sensor_pose(), &patch);
+    let h = height_at(&m, 1.02, 0.02).expect("V = 9 > 7: established");
+    assert!(h.abs() < 0.005, "{h}");
+    for _ in 0..5 {
+        integrate(&mut m, sensor_pose(), &patch);
+    }
+    assert!(
+        height_at(&m, 1.5, 0.5).is_none(),
+        "a single return never makes the map"
+    );
+}
+
+#[test]
+fn visibility_check_removes_an_obstacle_the_sensor_sees_past() {
+    for check in [true, false] {
+        let mut m = StackMapper::new(StackConfig {
+            visibility_check: check,
+            ..config()
+        });
+        // A spurious 30 cm obstacle at 1 m (e.g. from an earlier pose error), seen three
+        // times so that it is established.
+        let spurious: Vec<Point3<f64>> = ground(1.0, 1.03, -0.015, 0.015)
+            .iter()
+            .map(|p| Point3::new(p.x, p.y, 0.3))
+            .collect();
+        for _ in 0..3 {
+            integrate(&mut m, sensor_pose(), &spurious);
+        }
+        assert!(height_at(&m, 1.01, 0.0).is_some_and(|h| (h - 0.3).abs() < 0.01));
+        // Now the floor 2-3 m away is seen straight past where it stood: the line of
+        // sight to it passes 0.33 m above the floor at 1 m, lower than the obstacle.
+        for _ in 0..4 {
+            integrate(&mut m, sensor_pose(), &ground(2.0, 3.0, -0.1, 0.1));
+        }
+        let h = height_at(&m, 1.01, 0.0);
+        if check {
+            assert!(h.is_none_or(|h| h < 0.25), "the occluder is cut: {h:?}");
+        } else {
+            assert!(
+                h.is_some_and(|h| (h - 0.3).abs() < 0.01),
+                "without the check it stays: {h:?}"
+            );
+        }
+    }
+}
+
+/// A mapper with an established 1 m x 0.2 m patch of floor, and its exported layers.
+fn mapped(m: &mut dyn ElevationMapper) -> MapLayers {
+    for _ in 0..3 {
+        integrate(m, sensor_pose(), &ground(1.0, 2.0, -0.1, 0.1));
+    }
+    m.export()
+}
+
+#[test]
+fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
+    let mappers: [fn() -> Box<dyn ElevationMapper>; 2] = [
+        || Box::new(StackMapper::new(config())),
+        || {
+            Box::new(crate::fankhauser::FankhauserMapper::new(
+                crate::fankhauser::FankhauserConfig::default(),
+            ))
+        },
+    ];
+    for make in mappers {
+        let mut m = make();
+        let before = mapped(m.as_mut());
+        assert!(before.cells_observed() > 1000, "{}", m.name());
+        let pose = sensor_pose();
+        // NaN and infinite points.
+        let bad = [
+            Point3::new(f64::NAN, 0.0, 1.0),
+            Point3::new(0.0, f64::INFINITY, 1.0),
+            Point3::new(0.0, 0.0, f64::NEG_INFINITY),
+        ];
+        let s = m.integrate(&SensorFrame {
+            cloud: Cloud::Points {
+                points: &bad,
+                covariances: &[Matrix3::identity() * 1e-4; 3],
+            },
+            map_from_sensor: pose,
+            time_s: 0.1,
+        });
+        assert_eq!(
+            (s.rejected.non_finite, s.points_used),
+            (3, 0),
+            "{}",
+            m.name()
+        );
+        // Points outside the 4 m window (inside the sensor's range).
+        let s = integrate(
+            m.as_mut(),
+            pose,
+            &[Point3::new(1.5, 3.0, 0.0), Point3::new(1.5, -3.0, 0.0)],
+        );
+        assert_eq!(
+            (s.rejected.outside_window, s.points_used),
+            (2, 0),
+            "{}",
+            m.name()
+        );
+        // Zero, negative and NaN variances.
+        let p = [Point3::new(0.0, 0.0, 1.5); 3];
+        let covs = [
+            Matrix3::zeros(),
+            Matrix3::identity() * -1e-4,
+            Matrix3::identity() * f64::NAN,
+        ];
+        let s = m.integrate(&SensorFrame {
+            cloud: Cloud::Points {
+                points: &p,
+                covariances: &covs,
+            },
+            map_from_sensor: pose,
+            time_s: 0.2,
+        });
+        assert_eq!(
+            (s.rejected.bad_variance, s.points_used),
+            (3, 0),
+            "{}",
+            m.name()
+        );
+        // A NaN pose drops the whole frame.
+        let nan_pose = Isometry3::from_parts(Translation3::new(f64::NAN, 0.0, 0.5), pose.rotation);
+        let floor = ground(1.0, 2.0, -0.1, 0.1);
+        let s = integrate(m.as_mut(), nan_pose, &floor);
+        assert_eq!(
+            (s.rejected.bad_pose, s.points_used),
+            (floor.len(), 0),
+            "{}",
+            m.name()
+        );
+        assert_eq!(
+            first_difference(&m.export(), &before),
+            None,
+            "{}: the map is unchanged",
+            m.name()
+        );
+        // Absurd but positive variances are used (beside the floor patch), and the map
+        // stays finite.
+        let world = [Point3::new(1.5, -0.5, 0.2), Point3::new(1.5, 0.5, 0.2)];
+        let p: Vec<Point3<f64>> = world.iter().map(|q| pose.inverse() * q).collect();
+        let covs = [Matrix3::identity() * 1e-60, Matrix3::identity() * 1e300];
+        for k in 0..3 {
+            m.integrate(&SensorFrame {
+                cloud: Cloud::Points {
+                    points: &p,
+                    covariances: &covs,
+                },
+                map_from_sensor: pose,
+                time_s: 0.3 + 0.1 * f64::from(k),
+            });
+        }
+        let after = m.export();
+        let finite = |l: &MapLayers| {
+            l.elevation
+                .as_slice()
+                .iter()
+                .filter(|v| v.is_finite())
+                .count()
+        };
+        assert!(
+            after
+                .elevation
+                .as_slice()
+                .iter()
+                .chain(after.variance.as_slice())
+                .all(|v| v.is_nan() || v.is_finite()),
+            "{}",
+            m.name()
+        );
+        assert_eq!(finite(&after), finite(&before) + 2, "{}", m.name());
+    }
+}
+
+#[test]
+fn results_do_not_depend_on_the_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut m = StackMapper::new(StackConfig::default());
+            let mut pts = ground(0.8, 2.5, -0.6, 0.6);
+            pts.extend(
+                ground(1.2, 1.4, -0.1, 0.1)
+                    .iter()
+                    .map(|p| Point3::new(p.x, p.y, 0.2)),
+            );
+            for k in 0..4 {
+                let pose = Isometry3::from_parts(
+                    Translation3::new(0.02 * k as f64, 0.0, 0.5),
+                    sensor_pose().rotation,
+                );
+                integrate(&mut m, pose, &pts);
+            }
+            m.export()
+        })
+    };
+    assert_eq!(first_difference(&run(1), &run(2)), None);
+}
