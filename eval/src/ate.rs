@@ -6,7 +6,7 @@ use crate::align::{compute_alignment, Alignment};
 use crate::error::EvalError;
 use crate::options::{Align, Preset};
 use crate::stats::Statistics;
-use crate::sync::{associate, too_few_pairs};
+use crate::sync::{associate, check_association, too_few_pairs};
 use nalgebra::Point3;
 use stride_core::pose::{rotation_angle_rad, Pose};
 use stride_core::trajectory::Trajectory;
@@ -67,18 +67,7 @@ pub fn ate(
     options: &AteOptions,
 ) -> Result<AteResult, EvalError> {
     let o = *options;
-    if !(o.t_max_diff_s.is_finite() && o.t_max_diff_s >= 0.0) {
-        return Err(EvalError::InvalidOption(format!(
-            "--t-max-diff must be a non-negative number of seconds, got {}",
-            o.t_max_diff_s
-        )));
-    }
-    if !o.offset_s.is_finite() {
-        return Err(EvalError::InvalidOption(format!(
-            "--offset must be finite, got {}",
-            o.offset_s
-        )));
-    }
+    check_association(o.t_max_diff_s, o.offset_s)?;
     let mut warnings = Vec::new();
     if o.preset == Preset::Tum && o.align != Align::Se3 {
         warnings.push(format!(

@@ -17,7 +17,7 @@ use crate::ate::gather;
 use crate::error::EvalError;
 use crate::options::{Align, DeltaUnit, Preset};
 use crate::stats::Statistics;
-use crate::sync::{associate, too_few_pairs};
+use crate::sync::{associate, check_association, too_few_pairs};
 use stride_core::pose::{chordal_distance, rotation_angle_acos_rad, rotation_angle_rad, Pose};
 use stride_core::trajectory::Trajectory;
 
@@ -107,18 +107,7 @@ fn validate(o: &RpeOptions) -> Result<(), EvalError> {
             o.delta
         )));
     }
-    if !(o.t_max_diff_s.is_finite() && o.t_max_diff_s >= 0.0) {
-        return Err(EvalError::InvalidOption(format!(
-            "--t-max-diff must be a non-negative number of seconds, got {}",
-            o.t_max_diff_s
-        )));
-    }
-    if !o.offset_s.is_finite() {
-        return Err(EvalError::InvalidOption(format!(
-            "--offset must be finite, got {}",
-            o.offset_s
-        )));
-    }
+    check_association(o.t_max_diff_s, o.offset_s)?;
     if !(o.rel_delta_tol.is_finite() && o.rel_delta_tol >= 0.0) {
         return Err(EvalError::InvalidOption(format!(
             "--delta-tol must be a non-negative fraction, got {}",

@@ -5,6 +5,22 @@ use crate::options::Preset;
 use stride_core::time::{associate_greedy, associate_nearest};
 use stride_core::trajectory::Trajectory;
 
+/// Checks the association options: a window `t_max_diff_s` of zero or more seconds and a
+/// finite `offset_s`.
+pub fn check_association(t_max_diff_s: f64, offset_s: f64) -> Result<(), EvalError> {
+    if !(t_max_diff_s.is_finite() && t_max_diff_s >= 0.0) {
+        return Err(EvalError::InvalidOption(format!(
+            "--t-max-diff must be a non-negative number of seconds, got {t_max_diff_s}"
+        )));
+    }
+    if !offset_s.is_finite() {
+        return Err(EvalError::InvalidOption(format!(
+            "--offset must be finite, got {offset_s}"
+        )));
+    }
+    Ok(())
+}
+
 /// Index pairs `(i_gt, i_est)` of associated poses, in the order the tool produces them:
 /// evo walks the shorter trajectory in time order, TUM sorts by ground-truth time.
 pub fn associate(
