@@ -82,32 +82,27 @@ impl CameraConfig {
 
     /// Reads a camera file (format by extension; see the module documentation).
     pub fn from_file(path: &Path) -> Result<Self, DatasetError> {
-        let ext = path
-            .extension()
-            .map(|e| e.to_string_lossy().to_ascii_lowercase())
-            .unwrap_or_default();
-        if !matches!(ext.as_str(), "json" | "toml" | "yaml" | "yml") {
-            return Err(DatasetError::invalid(
-                path,
-                format!(
-                    "not a camera preset ({}) nor a camera file ending in .json, .toml, .yaml or .yml",
-                    PRESET_NAMES.join(", ")
-                ),
-            ));
-        }
+        camera_file_extension(path)?;
         let text = crate::text::read_text(path)?;
+        Self::from_text(&text, path)
+    }
+
+    /// Parses the text of a camera file, in the format its `path`'s extension names (the
+    /// path is otherwise only used in messages).
+    pub fn from_text(text: &str, path: &Path) -> Result<Self, DatasetError> {
+        let ext = camera_file_extension(path)?;
         if matches!(ext.as_str(), "yaml" | "yml")
-            && crate::orbslam_settings::is_orbslam_settings(&text)
+            && crate::orbslam_settings::is_orbslam_settings(text)
         {
-            return Self::from_orbslam(&text, path);
+            return Self::from_orbslam(text, path);
         }
         let file: CameraFile = match ext.as_str() {
-            "json" => serde_json::from_str(&text).map_err(|e| {
+            "json" => serde_json::from_str(text).map_err(|e| {
                 DatasetError::parse(path, e.line(), format!("invalid camera JSON: {e}"))
             })?,
-            "toml" => toml::from_str(&text)
+            "toml" => toml::from_str(text)
                 .map_err(|e| DatasetError::invalid(path, format!("invalid camera TOML: {e}")))?,
-            _ => serde_yaml_ng::from_str(&text).map_err(|e| match e.location() {
+            _ => serde_yaml_ng::from_str(text).map_err(|e| match e.location() {
                 Some(loc) => {
                     DatasetError::parse(path, loc.line(), format!("invalid camera YAML: {e}"))
                 }
@@ -164,6 +159,24 @@ impl CameraConfig {
         // Serialising plain numbers cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
     }
+}
+
+/// The lower-case extension of a camera file, or an error when it names no known format.
+fn camera_file_extension(path: &Path) -> Result<String, DatasetError> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if !matches!(ext.as_str(), "json" | "toml" | "yaml" | "yml") {
+        return Err(DatasetError::invalid(
+            path,
+            format!(
+                "not a camera preset ({}) nor a camera file ending in .json, .toml, .yaml or .yml",
+                PRESET_NAMES.join(", ")
+            ),
+        ));
+    }
+    Ok(ext)
 }
 
 impl CameraFile {

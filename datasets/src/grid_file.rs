@@ -101,15 +101,19 @@ pub fn decode_npy_f32(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<f3
     }
     let major = bytes.get(6).copied().unwrap_or(0);
     let (hlen, start) = match major {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        1 => {
+            let b = bytes.get(8..10).ok_or_else(|| bad("truncated header"))?;
+            (usize::from(u16::from_le_bytes([b[0], b[1]])), 10)
+        }
         2 | 3 => {
             let b = bytes.get(8..12).ok_or_else(|| bad("truncated header"))?;
             (u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize, 12)
         }
         _ => return Err(bad("unknown version")),
     };
+    let body_start = start + hlen; // hlen < 2^32: no overflow on 64-bit
     let header = bytes
-        .get(start..start + hlen)
+        .get(start..body_start)
         .ok_or_else(|| bad("truncated header"))?;
     let header = std::str::from_utf8(header).map_err(|_| bad("header is not text"))?;
     let word_size = if header.contains("'<f4'") {
@@ -137,12 +141,14 @@ pub fn decode_npy_f32(bytes: &[u8], path: &Path) -> Result<(usize, usize, Vec<f3
     let [rows, cols] = dims.as_slice() else {
         return Err(bad("the array must be 2-D"));
     };
-    let body = &bytes[start + hlen..];
-    let n = rows * cols;
-    if body.len() != n * word_size {
+    let body = bytes.get(body_start..).unwrap_or(&[]);
+    let expected = rows
+        .checked_mul(*cols)
+        .and_then(|n| n.checked_mul(word_size))
+        .ok_or_else(|| bad(&format!("shape ({rows}, {cols}) is too large")))?;
+    if body.len() != expected {
         return Err(bad(&format!(
-            "expected {} data bytes for shape ({rows}, {cols}), found {}",
-            n * word_size,
+            "expected {expected} data bytes for shape ({rows}, {cols}), found {}",
             body.len()
         )));
     }
@@ -171,6 +177,29 @@ pub fn write_header(path: &Path, geometry: &GridGeometry) -> Result<(), DatasetE
     write_atomic(path, text.as_bytes()).map_err(|e| DatasetError::io(path, e))
 }
 
+/// Parses a grid header (`grid.json`); `path` is only used in messages. Only `+y` rows and
+/// `+x` columns, a positive resolution and a finite origin are accepted.
+pub fn parse_grid_header(text: &str, path: &Path) -> Result<GridHeader, DatasetError> {
+    let h: GridHeader = serde_json::from_str(text)
+        .map_err(|e| DatasetError::parse(path, e.line(), format!("invalid grid header: {e}")))?;
+    if h.row_axis != "+y" || h.col_axis != "+x" {
+        return Err(DatasetError::invalid(
+            path,
+            "only row_axis \"+y\" and col_axis \"+x\" are supported",
+        ));
+    }
+    if !(h.resolution.is_finite() && h.resolution > 0.0) {
+        return Err(DatasetError::invalid(
+            path,
+            format!("resolution {} must be positive", h.resolution),
+        ));
+    }
+    if !(h.origin_x.is_finite() && h.origin_y.is_finite()) {
+        return Err(DatasetError::invalid(path, "the origin must be finite"));
+    }
+    Ok(h)
+}
+
 /// Reads a layer and its header: `header` defaults to the `.json` with the layer's stem
 /// (`terrain.npy` -> `terrain.json`), else `grid.json` in the same folder.
 pub fn read_grid(npy: &Path, header: Option<&Path>) -> Result<Grid<f32>, DatasetError> {
@@ -193,21 +222,7 @@ pub fn read_grid(npy: &Path, header: Option<&Path>) -> Result<Grid<f32>, Dataset
         }
     };
     let text = crate::text::read_text(&header_path)?;
-    let h: GridHeader = serde_json::from_str(&text).map_err(|e| {
-        DatasetError::parse(&header_path, e.line(), format!("invalid grid header: {e}"))
-    })?;
-    if h.row_axis != "+y" || h.col_axis != "+x" {
-        return Err(DatasetError::invalid(
-            &header_path,
-            "only row_axis \"+y\" and col_axis \"+x\" are supported",
-        ));
-    }
-    if !(h.resolution.is_finite() && h.resolution > 0.0) {
-        return Err(DatasetError::invalid(
-            &header_path,
-            format!("resolution {} must be positive", h.resolution),
-        ));
-    }
+    let h = parse_grid_header(&text, &header_path)?;
     let bytes = std::fs::read(npy).map_err(|e| DatasetError::io(npy, e))?;
     let (rows, cols, data) = decode_npy_f32(&bytes, npy)?;
     if (rows, cols) != (h.rows, h.cols) {
@@ -336,6 +351,16 @@ mod tests {
         assert!(back[1].is_nan());
         assert!(decode_npy_f32(b"nope", Path::new("x.npy")).is_err());
         assert!(decode_npy_f32(&bytes[..bytes.len() - 2], Path::new("x.npy")).is_err());
+        // A shape whose byte count overflows is an error, not a wrap-around or a panic.
+        let header =
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (4294967296, 4294967296), }";
+        let mut huge = b"\x93NUMPY\x01\x00".to_vec();
+        huge.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        huge.extend_from_slice(header.as_bytes());
+        let e = decode_npy_f32(&huge, Path::new("h.npy"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("too large"), "{e}");
     }
 
     #[test]

@@ -98,12 +98,17 @@ pub struct TumSequence {
 /// TUM scripts (which read the list into a dictionary) do, with a warning naming the file,
 /// both lines and the count.
 pub fn read_image_list(path: &Path) -> Result<Vec<(f64, String)>, DatasetError> {
-    let text = read_text(path)?;
+    parse_image_list(&read_text(path)?, path)
+}
+
+/// Parses the text of an image list; `path` is only used in messages. See
+/// [`read_image_list`].
+pub fn parse_image_list(text: &str, path: &Path) -> Result<Vec<(f64, String)>, DatasetError> {
     let mut out: Vec<(f64, String)> = Vec::new();
     let mut last_line = 0;
     let mut duplicates = 0usize;
     let mut first_duplicate = None;
-    for dl in data_lines(&text) {
+    for dl in data_lines(text) {
         let [stamp, file] = dl.exact_fields::<2>().map_err(|n| {
             DatasetError::parse(
                 path,
