@@ -184,4 +184,34 @@ fn bad_pose_files_fail_cleanly_and_frames_outside_the_poses_are_counted() {
     let mapped = r["frames_mapped"].as_u64().unwrap();
     assert!((5..=6).contains(&mapped), "{r}");
     assert_eq!(r["frames_skipped_no_pose"].as_u64().unwrap(), 12 - mapped);
+
+    // Poses that overlap no frame: an error, and the previous good output stays.
+    let later: Vec<String> = lines[..6]
+        .iter()
+        .map(|l| {
+            let mut f: Vec<String> = l.split_whitespace().map(str::to_owned).collect();
+            let t: f64 = f[0].parse().unwrap();
+            f[0] = format!("{:.6}", t + 1000.0);
+            f.join(" ")
+        })
+        .collect();
+    let later_path = tmp.path().join("later.txt");
+    std::fs::write(&later_path, later.join("\n")).unwrap();
+    let half_dir = tmp.path().join("half");
+    let before = std::fs::read(half_dir.join("report.json")).unwrap();
+    let out = run(&[
+        "map",
+        "--dataset",
+        seq.to_str().unwrap(),
+        "--poses",
+        later_path.to_str().unwrap(),
+        "--out",
+        half_dir.to_str().unwrap(),
+        "--max-frames",
+        "12",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("no frame could be mapped"), "{err}");
+    assert_eq!(std::fs::read(half_dir.join("report.json")).unwrap(), before);
 }

@@ -125,3 +125,75 @@ fn free_running_conflicts_with_deterministic() {
     assert!(!out.status.success());
     assert!(!tmp.path().join("x").join("report.json").exists());
 }
+
+/// `stride run` killed (SIGKILL) at several moments leaves either nothing (first run), the
+/// previous complete output, or the complete new one: never a mix or half a file.
+#[test]
+fn a_killed_run_leaves_the_previous_or_the_complete_new_output() {
+    let Some(seq) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let args = [
+        "run",
+        "--dataset",
+        seq.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "-q",
+        "--max-frames",
+        "120",
+    ];
+    let complete = |out: &Path| {
+        let r = report(out);
+        assert_eq!(r["frames"], 120, "{r}");
+        let traj = read_tum_trajectory(&out.join("trajectory.tum")).unwrap();
+        assert_eq!(traj.len(), 120);
+        for f in [
+            "trajectory_live.tum",
+            "keyframes.tum",
+            "frames.csv",
+            "report.html",
+        ] {
+            assert!(out.join(f).is_file(), "{f} missing");
+        }
+    };
+    let mut published = 0;
+    for (i, delay_ms) in [30u64, 400, 1100, 1900, 2600, 60_000].iter().enumerate() {
+        let mut child = common::stride().args(args).spawn().unwrap();
+        let waited = std::time::Instant::now();
+        let finished = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                assert!(status.success(), "run {i} failed");
+                break true;
+            }
+            if waited.elapsed().as_millis() as u64 >= *delay_ms {
+                child.kill().unwrap();
+                child.wait().unwrap();
+                break false;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        };
+        if out.exists() {
+            complete(&out);
+            published += 1;
+        } else {
+            assert!(!finished && published == 0, "run {i}: the output vanished");
+        }
+        // No staging folder is left visible as output, and at most one (the killed
+        // run's) waits beside it, to be removed by the next run.
+        let hidden = std::fs::read_dir(tmp.path())
+            .unwrap()
+            .filter(|e| {
+                let name = e.as_ref().unwrap().file_name();
+                name.to_string_lossy().starts_with(".run.partial-")
+            })
+            .count();
+        assert!(hidden <= 1, "{hidden} staging folders");
+    }
+    assert!(
+        published > 0,
+        "the last run was never killed and must have published"
+    );
+}

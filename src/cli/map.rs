@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
-use stride_core::fsutil::write_atomic;
+use stride_core::fsutil::{write_atomic, StagedDir};
 use stride_core::grid::Grid;
 use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
@@ -440,7 +440,19 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         gt.as_ref(),
         !a.no_median_filter,
     )?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    if counts.mapped == 0 {
+        anyhow::bail!(
+            "no frame could be mapped, nothing written: of {} frames, {} lie outside the poses' \
+             time span and {} could not be read",
+            counts.frames,
+            counts.no_pose,
+            counts.unreadable
+        );
+    }
+    // Written into a staging folder published at the end: a killed run leaves the previous
+    // output or the complete new one.
+    let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let out = staged.path();
     let mut report = Map::new();
     let mut rep = Report::new("stride map: elevation map");
     rep.paragraph(format!("Dataset {}; poses {}{}; {} of {} frames mapped ({} outside the poses' time span, {} unreadable).", a.dataset.display(), a.poses, if a.drift > 0.0 { format!(" with {} % drift (seed {})", a.drift, a.seed) } else { String::new() }, counts.mapped, counts.frames, counts.no_pose, counts.unreadable));
@@ -448,9 +460,9 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     let mut rows = Vec::new();
     for r in &runs {
         let dir = if runs.len() > 1 {
-            a.out.join(r.name)
+            out.join(r.name)
         } else {
-            a.out.clone()
+            out.to_path_buf()
         };
         write_layers(&dir, &r.layers)?;
         let j = run_json(r, &counts);
@@ -544,9 +556,12 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         );
     }
     write_atomic(
-        &a.out.join("report.json"),
+        &out.join("report.json"),
         serde_json::to_string_pretty(&Value::Object(report.clone()))?.as_bytes(),
     )?;
-    rep.write(&a.out)?;
+    rep.write(out)?;
+    staged
+        .publish()
+        .with_context(|| format!("publishing {}", a.out.display()))?;
     Ok((Value::Object(report), runs, counts))
 }

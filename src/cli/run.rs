@@ -8,7 +8,7 @@ use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use stride_backend::{BackendConfig, BackendMode};
-use stride_core::fsutil::write_atomic;
+use stride_core::fsutil::{write_atomic, StagedDir};
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::{ate, rpe, Align, AteOptions, AteResult, Preset, RpeOptions, RpeResult};
@@ -176,20 +176,17 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
                 .unwrap_or("no frames")
         );
     }
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    // Everything is written into a staging folder published at the end: a run killed at
+    // any moment leaves the previous output or the complete new one.
+    let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let dir = staged.path();
     let traj = output.trajectory()?;
-    write_tum_trajectory(&a.out.join("trajectory.tum"), &traj)?;
+    write_tum_trajectory(&dir.join("trajectory.tum"), &traj)?;
     if let Some(b) = &output.backend {
-        write_tum_trajectory(
-            &a.out.join("trajectory_live.tum"),
-            &output.live_trajectory()?,
-        )?;
-        write_tum_trajectory(
-            &a.out.join("keyframes.tum"),
-            &b.keyframe_trajectory(&output),
-        )?;
+        write_tum_trajectory(&dir.join("trajectory_live.tum"), &output.live_trajectory()?)?;
+        write_tum_trajectory(&dir.join("keyframes.tum"), &b.keyframe_trajectory(&output))?;
     }
-    write_frames_csv(&a.out.join("frames.csv"), &output)?;
+    write_frames_csv(&dir.join("frames.csv"), &output)?;
 
     let ate_opts = AteOptions {
         align: Align::Se3,
@@ -226,10 +223,13 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         ate_live.as_ref(),
     );
     write_atomic(
-        &a.out.join("report.json"),
+        &dir.join("report.json"),
         serde_json::to_string_pretty(&json)?.as_bytes(),
     )?;
-    super::run_report::write_html(&a.out, a, &json, &output, ate_r.as_ref(), rpe_r.as_ref())?;
+    super::run_report::write_html(dir, a, &json, &output, ate_r.as_ref(), rpe_r.as_ref())?;
+    staged
+        .publish()
+        .with_context(|| format!("publishing {}", a.out.display()))?;
     Ok(RunSummary {
         json,
         ate: ate_r,
