@@ -203,9 +203,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out)?;
     let config = a.config()?;
     let summary = synthesize(&config, &a.out, a.overwrite)?;
-    let mut r = summary.render_s.clone();
-    r.sort_by(f64::total_cmp);
-    let median = r.get(r.len() / 2).copied().unwrap_or(f64::NAN);
+    let median = median(&summary.render_s);
     crate::outln!(
         "{} frames in {:.1} s: rendering {:.1} ms/frame median ({:.1} frames/s{}), gait cycle {:.2} Hz, steps {:.2} Hz",
         summary.frames.len(),
@@ -300,8 +298,7 @@ pub fn blur_report(summary: &SynthSummary, fps: f64) -> Result<String> {
     Ok(text)
 }
 
+/// The median (of the two middle values, their mean), as every report computes it.
 fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s.get(s.len() / 2).copied().unwrap_or(f64::NAN)
+    crate::pipeline::median_p95(v.iter().copied()).0
 }
