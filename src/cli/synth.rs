@@ -105,6 +105,15 @@ pub struct SynthArgs {
         allow_negative_numbers = true
     )]
     exposure_ms: f64,
+    /// Rolling-shutter readout time of the colour image, first row to last (ms; 0: global
+    /// shutter). Depth stays global-shutter, as on a Kinect.
+    #[arg(
+        long,
+        value_name = "MS",
+        default_value_t = 20.0,
+        allow_negative_numbers = true
+    )]
+    rolling_shutter_ms: f64,
     /// Scale of the gait-induced shaking (1 = Messor II-like).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     shake: f64,
@@ -168,6 +177,7 @@ impl SynthArgs {
             seed: self.seed,
             blur: !self.no_blur,
             exposure_s: self.exposure_ms / 1000.0,
+            rolling_shutter_s: self.rolling_shutter_ms / 1000.0,
             depth_noise,
             ..defaults
         };
