@@ -35,9 +35,8 @@ impl Backend {
 
     /// Removes the window's redundant keyframes: those (other than the first) with at least
     /// `redundant_fraction` of their points seen by `redundant_observers` other keyframes.
-    /// The newest is one of them when it adds nothing: a scene seen again does not grow the
-    /// map. Each keeps its pose relative to the keyframe sharing the most points with it.
-    /// Returns how many were removed.
+    /// The newest is one of them when it adds nothing. Each keeps its pose relative to its
+    /// neighbour in time (see below). Returns how many were removed.
     pub(crate) fn cull_keyframes(&mut self, window: &[KeyframeId]) -> usize {
         let mut removed = 0;
         for &k in window {
