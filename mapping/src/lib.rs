@@ -72,8 +72,15 @@ pub trait ElevationMapper {
     fn name(&self) -> &'static str;
     /// Integrates one frame (measurements and the sensor's pose in the map frame).
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats;
-    /// Every cell mapped so far (the moving window and the cells it left behind).
+    /// Every cell mapped so far (the moving window and the cells it left behind), as the
+    /// filters left them.
     fn export(&self) -> MapLayers;
+    /// The map as its method delivers it: [`Self::export`] followed by the mapper's own
+    /// post-processing (the stack mapper's median filter, paper 000), with what it changed.
+    /// Mappers without post-processing return `export()` unchanged.
+    fn finished(&self) -> (MapLayers, post::MedianStats) {
+        (self.export(), post::MedianStats::default())
+    }
 }
 
 /// A mapper's layers over the bounding box of its cells, in the map frame (z up), NaN where

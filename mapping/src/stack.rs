@@ -29,13 +29,15 @@
 //!
 //! Columns measured in the current frame never lose the voxels measured now.
 //!
-//! The median fill of small holes is applied when the map is exported ([`crate::post`]).
+//! The median fill of small holes ([`crate::post`]) is applied by
+//! [`ElevationMapper::finished`], when [`StackConfig::median_filter`] asks for it.
 
 use crate::column::{Accs, Cell, Stack};
 use crate::input::{
     prepare_binned, Binned, Cloud, EdgeFilter, PrimeSenseHeight, RayCache, SensorFrame,
 };
 use crate::polar::Polar;
+use crate::post::{median_filter, MedianFilter, MedianStats};
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
 use rayon::prelude::*;
@@ -80,6 +82,9 @@ pub struct StackConfig {
     /// Depth-edge (flying pixel) filter on depth images, the sensor front end that paper
     /// 000 assumes before the map ([`crate::input::EdgeFilter`]); `None` turns it off.
     pub edge_filter: Option<EdgeFilter>,
+    /// Paper 000's median filter applied by [`ElevationMapper::finished`] (hole filling,
+    /// isolated-cell removal); `None` leaves the map as the filters left it.
+    pub median_filter: Option<MedianFilter>,
 }
 
 impl Default for StackConfig {
@@ -100,6 +105,7 @@ impl Default for StackConfig {
             recenter_threshold_m: 0.3,
             sensor: PrimeSenseHeight::default(),
             edge_filter: Some(EdgeFilter::default()),
+            median_filter: Some(MedianFilter::default()),
         }
     }
 }
@@ -519,6 +525,15 @@ impl ElevationMapper for StackMapper {
             prepare_s,
             checks_s: checks_start.elapsed().as_secs_f64(),
         }
+    }
+
+    fn finished(&self) -> (MapLayers, MedianStats) {
+        let mut layers = self.export();
+        let stats = match &self.cfg.median_filter {
+            Some(f) => median_filter(&mut layers.elevation, &mut layers.variance, f),
+            None => MedianStats::default(),
+        };
+        (layers, stats)
     }
 
     fn export(&self) -> MapLayers {

@@ -298,3 +298,53 @@ fn results_do_not_depend_on_the_thread_count() {
     };
     assert_eq!(first_difference(&run(1), &run(2)), None);
 }
+
+/// Layers equal bit for bit (NaN, unknown, equals NaN).
+fn same_layers(a: &MapLayers, b: &MapLayers) -> bool {
+    let bits = |g: &stride_core::grid::Grid<f32>| -> Vec<u32> {
+        g.as_slice().iter().map(|v| v.to_bits()).collect()
+    };
+    [
+        (&a.elevation, &b.elevation),
+        (&a.variance, &b.variance),
+        (&a.vitality, &b.vitality),
+        (&a.updates, &b.updates),
+    ]
+    .iter()
+    .all(|(x, y)| x.geometry == y.geometry && bits(x) == bits(y))
+}
+
+#[test]
+fn finished_applies_the_configured_median_filter_and_only_it() {
+    // A ground patch with a one-cell hole in the middle: the median fill closes it.
+    let patch: Vec<Point3<f64>> = ground(1.0, 1.05, 0.0, 0.05)
+        .into_iter()
+        .filter(|p| !((1.02..1.03).contains(&p.x) && (0.02..0.03).contains(&p.y)))
+        .collect();
+    for filter in [None, Some(MedianFilter::default())] {
+        let mut m = StackMapper::new(StackConfig {
+            median_filter: filter,
+            ..config()
+        });
+        for _ in 0..3 {
+            integrate(&mut m, sensor_pose(), &patch);
+        }
+        let raw = m.export();
+        let (done, stats) = m.finished();
+        match filter {
+            None => {
+                assert!(same_layers(&done, &raw));
+                assert_eq!(stats, MedianStats::default());
+            }
+            Some(f) => {
+                let mut expected = raw.clone();
+                let expected_stats =
+                    median_filter(&mut expected.elevation, &mut expected.variance, &f);
+                assert!(same_layers(&done, &expected));
+                assert!(!same_layers(&done, &raw), "the hole is filled");
+                assert_eq!(stats, expected_stats);
+                assert!(stats.filled > 0, "{stats:?}");
+            }
+        }
+    }
+}

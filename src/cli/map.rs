@@ -20,7 +20,7 @@ use stride_mapping::input::{Cloud, Rejections, SensorFrame};
 use stride_mapping::metrics::{
     compare, floor_fit, performance_index, phantoms, FloorFit, MapScore, PhantomScore,
 };
-use stride_mapping::post::{median_filter, MedianFilter, MedianStats};
+use stride_mapping::post::MedianStats;
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers};
 
@@ -155,6 +155,7 @@ pub fn stack_config(a: &MapArgs) -> StackConfig {
         visibility_check: !a.no_visibility,
         see_through_check: !a.no_see_through,
         edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
+        median_filter: d.median_filter.filter(|_| !a.no_median_filter),
         ..d
     }
 }
@@ -197,15 +198,14 @@ pub struct FrameCounts {
     pub unreadable: usize,
 }
 
-/// Maps a sequence with the given poses into each mapper; returns per-mapper runs. With
-/// `median`, the stack map gets paper 000's median filter before it is scored.
+/// Maps a sequence with the given poses into each mapper; returns per-mapper runs, each
+/// map as its mapper finishes it (the stack map's median fill per its configuration).
 pub fn map_sequence(
     seq: &TumSequence,
     poses: &Trajectory,
     mut mappers: Vec<Box<dyn ElevationMapper>>,
     max_frames: Option<usize>,
     gt: Option<&Grid<f32>>,
-    median: bool,
 ) -> Result<(Vec<MapperRun>, FrameCounts)> {
     let stream = seq.stream(max_frames, 4);
     let pb = ProgressBar::new(stream.len() as u64);
@@ -256,17 +256,9 @@ pub fn map_sequence(
     pb.finish_and_clear();
     let mut runs = Vec::new();
     for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
-        let mut layers = m.export();
-        // The median fill is part of paper 000's method, not of the baseline.
-        let median = if m.name() == "stack" && median {
-            median_filter(
-                &mut layers.elevation,
-                &mut layers.variance,
-                &MedianFilter::default(),
-            )
-        } else {
-            MedianStats::default()
-        };
+        // The mapper's own post-processing (the stack map's median fill; none for the
+        // baseline).
+        let (layers, median) = m.finished();
         let score = gt.and_then(|g| compare(&layers.elevation, g));
         let phantoms = gt.map(|g| phantom_score(&layers.elevation, g));
         let floor = floor_fit(&layers.elevation, FLOOR_BAND_M);
@@ -432,14 +424,7 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
     };
-    let (runs, counts) = map_sequence(
-        &seq,
-        &poses,
-        make_mappers(a),
-        a.max_frames,
-        gt.as_ref(),
-        !a.no_median_filter,
-    )?;
+    let (runs, counts) = map_sequence(&seq, &poses, make_mappers(a), a.max_frames, gt.as_ref())?;
     if counts.mapped == 0 {
         anyhow::bail!(
             "no frame could be mapped, nothing written: of {} frames, {} lie outside the poses' \
