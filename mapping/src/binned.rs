@@ -3,8 +3,8 @@
 //! never depend on the thread count).
 
 use crate::input::{
-    depth_slice, Cloud, DepthSlice, EdgeFilter, HeightModel, MapPoint, Placement, RayCache, Reason,
-    Rejections, SensorFrame,
+    depth_slice, Cloud, DepthSlice, EdgeFilter, HeightModel, HeightSample, Placement, RayCache,
+    Reason, Rejections, SensorFrame,
 };
 use rayon::prelude::*;
 
@@ -76,7 +76,7 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
         };
     }
     let place = Placement::new(&t, model.range_m());
-    let push = |res: Result<MapPoint, Reason>,
+    let push = |res: Result<HeightSample, Reason>,
                 lists: &mut Vec<Vec<CellPoint>>,
                 rej: &mut Rejections| match res {
         Ok(p) => match locate(p.x, p.y) {
@@ -154,7 +154,7 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
 pub fn to_map_points<M: HeightModel + ?Sized>(
     frame: &SensorFrame<'_>,
     model: &M,
-) -> (Vec<Option<MapPoint>>, Rejections) {
+) -> (Vec<Option<HeightSample>>, Rejections) {
     let mut rej = Rejections::default();
     let t = frame.map_from_sensor;
     if !frame.pose_is_finite() {
@@ -162,7 +162,7 @@ pub fn to_map_points<M: HeightModel + ?Sized>(
         return (vec![None; frame.len()], rej);
     }
     let place = Placement::new(&t, model.range_m());
-    let results: Vec<Result<MapPoint, Reason>> = match frame.cloud {
+    let results: Vec<Result<HeightSample, Reason>> = match frame.cloud {
         Cloud::Depth { depth_m, camera } => {
             let w = (depth_m.width() as usize).max(1);
             let mut cache = RayCache::default();

@@ -201,9 +201,10 @@ impl Rejections {
     }
 }
 
-/// A measurement in the map frame: position (m) and height variance (m²).
+/// A measurement placed in the map frame: position (m) and height variance (m²), as a
+/// mapper takes it (not a SLAM map point).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct MapPoint {
+pub struct HeightSample {
     /// x (m, map frame).
     pub x: f64,
     /// y (m, map frame).
@@ -327,12 +328,12 @@ impl Placement {
     }
 
     #[inline]
-    pub(crate) fn place(&self, p: Vector3<f64>, var: f64) -> Result<MapPoint, Reason> {
+    pub(crate) fn place(&self, p: Vector3<f64>, var: f64) -> Result<HeightSample, Reason> {
         if !(var.is_finite() && var > 0.0) {
             return Err(Reason::BadVariance);
         }
         let q = self.rot * p + self.trans;
-        Ok(MapPoint {
+        Ok(HeightSample {
             x: q.x,
             y: q.y,
             z: q.z,
@@ -351,7 +352,7 @@ impl Placement {
         v: usize,
         (xn, yn): (f64, f64),
         d: f32,
-    ) -> Result<MapPoint, Reason> {
+    ) -> Result<HeightSample, Reason> {
         let d = f64::from(d);
         if d == 0.0 {
             Err(Reason::NoReturn)
@@ -384,7 +385,7 @@ impl Placement {
         model: &M,
         p: &Point3<f64>,
         cov: Option<&Matrix3<f64>>,
-    ) -> Result<MapPoint, Reason> {
+    ) -> Result<HeightSample, Reason> {
         if !p.coords.iter().all(|v| v.is_finite()) {
             Err(Reason::NonFinite)
         } else if p.z < self.range.0 || p.z > self.range.1 {
@@ -460,7 +461,7 @@ struct RowPoint {
 /// vectorise, then a pass that hands valid points (or the reason for an invalid one) to
 /// `sink`.
 #[inline]
-pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Reason>)>(
+pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample, Reason>)>(
     s: DepthSlice<'_, M>,
     mut sink: S,
 ) {
@@ -529,7 +530,7 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<MapPoint, Rea
         ));
         for ((p, &d), &near) in pts.iter().zip(drow).zip(&nearest) {
             if p.ok {
-                sink(Ok(MapPoint {
+                sink(Ok(HeightSample {
                     x: p.x,
                     y: p.y,
                     z: p.z,
