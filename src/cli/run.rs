@@ -182,10 +182,17 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     let dir = staged.path();
     let traj = output.trajectory()?;
     write_tum_trajectory(&dir.join("trajectory.tum"), &traj)?;
-    if let Some(b) = &output.backend {
-        write_tum_trajectory(&dir.join("trajectory_live.tum"), &output.live_trajectory()?)?;
-        write_tum_trajectory(&dir.join("keyframes.tum"), &b.keyframe_trajectory(&output))?;
-    }
+    // The poses as they were known frame by frame, before later corrections: what a
+    // consumer of live poses (a mapper, a controller) gets. Only a back end corrects them.
+    let live = match &output.backend {
+        Some(b) => {
+            let live = output.live_trajectory()?;
+            write_tum_trajectory(&dir.join("trajectory_live.tum"), &live)?;
+            write_tum_trajectory(&dir.join("keyframes.tum"), &b.keyframe_trajectory(&output))?;
+            Some(live)
+        }
+        None => None,
+    };
     write_frames_csv(&dir.join("frames.csv"), &output)?;
 
     let ate_opts = AteOptions {
@@ -208,10 +215,8 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         }
         None => (None, None),
     };
-    // The poses as they were known frame by frame, before later corrections: what a
-    // consumer of live poses (a mapper, a controller) gets.
-    let ate_live = match (&seq.groundtruth, output.backend.is_some()) {
-        (Some(gt), true) => ate(gt, &output.live_trajectory()?, &ate_opts).ok(),
+    let ate_live = match (&seq.groundtruth, &live) {
+        (Some(gt), Some(live)) => ate(gt, live, &ate_opts).ok(),
         _ => None,
     };
     let json = report_json(

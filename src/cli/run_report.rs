@@ -33,12 +33,9 @@ fn map_chart(out: &RunOutput, b: &BackendSummary) -> Chart {
             Series::line(
                 "trajectory",
                 PALETTE[1],
-                out.frames
+                out.final_poses()
                     .iter()
-                    .map(|f| {
-                        let p = out.final_pose(f).translation.vector;
-                        (p.x, p.z)
-                    })
+                    .map(|p| (p.translation.x, p.translation.z))
                     .collect(),
             ),
         ],

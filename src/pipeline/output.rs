@@ -82,18 +82,22 @@ pub struct BackendSummary {
 }
 
 impl BackendSummary {
+    /// The final `world_from_camera` of keyframe `id`.
+    pub fn keyframe_pose(&self, id: u64) -> Option<Isometry3<f64>> {
+        let i = self
+            .keyframe_poses
+            .binary_search_by_key(&id, |k| k.0)
+            .ok()?;
+        self.keyframe_poses.get(i).map(|k| k.1)
+    }
+
     /// The final poses of the keyframes, at their frames' times.
     pub fn keyframe_trajectory(&self, out: &RunOutput) -> Trajectory {
         let mut t = Trajectory::new();
         for f in out.frames.iter().filter(|f| f.keyframe) {
-            if let Ok(i) = self
-                .keyframe_poses
-                .binary_search_by_key(&f.keyframe_id, |k| k.0)
-            {
-                if let Some((_, pose)) = self.keyframe_poses.get(i) {
-                    // Frames are in time order and keyframes among them: pushing cannot fail.
-                    let _ = t.push(f.t_s, *pose);
-                }
+            if let Some(pose) = self.keyframe_pose(f.keyframe_id) {
+                // Frames are in time order and keyframes among them: pushing cannot fail.
+                let _ = t.push(f.t_s, pose);
             }
         }
         t
@@ -129,13 +133,6 @@ impl RunOutput {
                 .map(|f| f.live_world_from_camera)
                 .collect();
         };
-        let pose_of = |id: u64| {
-            b.keyframe_poses
-                .binary_search_by_key(&id, |k| k.0)
-                .ok()
-                .and_then(|i| b.keyframe_poses.get(i))
-                .map(|k| k.1)
-        };
         let mut next_kf: Vec<Option<&FrameRecord>> = vec![None; self.frames.len()];
         let mut next = None;
         for (i, f) in self.frames.iter().enumerate().rev() {
@@ -152,7 +149,7 @@ impl RunOutput {
             .collect();
         // A keyframe's final pose times the frame's odometry pose relative to it.
         let through = |k: &FrameRecord, f: &FrameRecord| {
-            pose_of(k.keyframe_id).map(|world_from_k| {
+            b.keyframe_pose(k.keyframe_id).map(|world_from_k| {
                 world_from_k * k.odometry_world_from_camera.inverse() * f.odometry_world_from_camera
             })
         };
@@ -180,35 +177,21 @@ impl RunOutput {
             .collect()
     }
 
-    /// The final `world_from_camera` of one frame (see [`RunOutput::final_poses`]).
-    pub fn final_pose(&self, f: &FrameRecord) -> Isometry3<f64> {
-        self.frames
-            .iter()
-            .position(|g| std::ptr::eq(g, f))
-            .and_then(|i| self.final_poses().get(i).copied())
-            .unwrap_or(f.live_world_from_camera)
-    }
-
     /// The estimated trajectory (every frame, final poses).
     pub fn trajectory(&self) -> Result<Trajectory> {
-        let poses = self.final_poses();
-        let mut t = Trajectory::new();
-        for (f, p) in self.frames.iter().zip(poses) {
-            t.push(f.t_s, p)
-                .with_context(|| format!("frame {} at {:.6} s", f.index, f.t_s))?;
-        }
-        Ok(t)
+        self.trajectory_of(self.final_poses())
     }
 
     /// The trajectory as it was known frame by frame (live poses).
     pub fn live_trajectory(&self) -> Result<Trajectory> {
-        self.trajectory_with(|f| f.live_world_from_camera)
+        self.trajectory_of(self.frames.iter().map(|f| f.live_world_from_camera))
     }
 
-    fn trajectory_with(&self, pose: impl Fn(&FrameRecord) -> Isometry3<f64>) -> Result<Trajectory> {
+    /// The frames' times with `poses`, one per frame in order.
+    fn trajectory_of(&self, poses: impl IntoIterator<Item = Isometry3<f64>>) -> Result<Trajectory> {
         let mut t = Trajectory::new();
-        for f in &self.frames {
-            t.push(f.t_s, pose(f))
+        for (f, p) in self.frames.iter().zip(poses) {
+            t.push(f.t_s, p)
                 .with_context(|| format!("frame {} at {:.6} s", f.index, f.t_s))?;
         }
         Ok(t)
