@@ -157,28 +157,28 @@ impl Backend {
         if !is_finite(&input.world_from_camera) {
             return Err(bad("its pose is not finite".into()));
         }
-        // 1. Predict the pose from the previous keyframe's optimized pose and the odometry.
-        let link = input.info.odometry.as_ref();
-        let predicted = link
-            .and_then(|l| Some(self.map.pose_of(l.previous_id)? * l.previous_from_this))
+        // 1. The odometry's link, to the previous keyframe or, when that one was culled, to
+        // the keyframe it is kept relative to; the pose predicted through it.
+        let odometry = input.info.odometry.as_ref().and_then(|l| {
+            let (previous, live_from_previous) = self.map.live_ancestor(l.previous_id)?;
+            Some(OdometryEdge {
+                previous,
+                previous_from_this: live_from_previous * l.previous_from_this,
+                information: odometry_information(
+                    &input.world_from_camera,
+                    &l.information,
+                    self.config.predicted_link_sigma,
+                ),
+                active: false,
+            })
+        });
+        let predicted = odometry
+            .as_ref()
+            .and_then(|e| {
+                Some(self.map.keyframe(e.previous)?.world_from_camera * e.previous_from_this)
+            })
             .filter(is_finite)
             .unwrap_or(input.world_from_camera);
-        // The previous keyframe may have been culled: link to the keyframe it is kept
-        // relative to.
-        let odometry = link.and_then(|l| {
-            let (previous, live_from_previous) = self.map.live_ancestor(l.previous_id)?;
-            Some((l, previous, live_from_previous * l.previous_from_this))
-        });
-        let odometry = odometry.map(|(l, previous, previous_from_this)| OdometryEdge {
-            previous,
-            previous_from_this,
-            information: odometry_information(
-                &input.world_from_camera,
-                &l.information,
-                self.config.predicted_link_sigma,
-            ),
-            active: false,
-        });
         let pose_cov = odometry
             .as_ref()
             .and_then(|o| o.information.try_inverse())
