@@ -6,21 +6,12 @@
 
 mod common;
 
-use common::{data, num, report, run, run_ok};
+use common::{data, num, run, run_ok};
 use std::path::Path;
 
+/// `stride map` on `seq` into `out` with extra arguments; its report.
 fn map(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec![
-        "map",
-        "--dataset",
-        seq.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ];
-    args.extend_from_slice(extra);
-    run_ok(&args);
-    report(out)
+    common::run_report("map", seq, out, extra)
 }
 
 /// A synthetic sequence over the default mixed terrain (steps, boxes) whose depth edges

@@ -5,23 +5,13 @@
 
 mod common;
 
-use common::{data, num, report, run_ok};
+use common::{data, num, report};
 use std::path::Path;
 use stride_datasets::trajectory_file::read_tum_trajectory;
 
-/// Runs `stride run` on `seq` into `out` with extra arguments; returns the report.
+/// `stride run` on `seq` into `out` with extra arguments; its report.
 fn slam(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec![
-        "run",
-        "--dataset",
-        seq.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "-q",
-    ];
-    args.extend_from_slice(extra);
-    run_ok(&args);
-    report(out)
+    common::run_report("run", seq, out, extra)
 }
 
 #[test]

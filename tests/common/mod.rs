@@ -44,6 +44,21 @@ pub fn run_ok(args: &[&str]) -> String {
     err
 }
 
+/// Runs `stride COMMAND --dataset DATASET --out OUT -q EXTRA...`, fails the test unless it
+/// succeeded, and returns the report.json it wrote.
+pub fn run_report(
+    command: &str,
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let (d, o) = (dataset.display().to_string(), out.display().to_string());
+    let mut args = vec![command, "--dataset", &d, "--out", &o, "-q"];
+    args.extend_from_slice(extra);
+    run_ok(&args);
+    report(out)
+}
+
 /// The report.json a command wrote into `dir`.
 pub fn report(dir: &std::path::Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("report.json")).expect("report.json is written");
