@@ -2,7 +2,6 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
@@ -208,12 +207,7 @@ pub fn map_sequence(
     gt: Option<&Grid<f32>>,
 ) -> Result<(Vec<MapperRun>, FrameCounts)> {
     let stream = seq.stream(max_frames, 4);
-    let pb = ProgressBar::new(stream.len() as u64);
-    pb.set_style(
-        ProgressStyle::with_template("mapping [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
+    let pb = crate::pipeline::progress_bar(stream.len(), "mapping", true);
     let mut counts = FrameCounts::default();
     let mut stats: Vec<(Vec<f64>, usize, Rejections, usize)> = mappers
         .iter()

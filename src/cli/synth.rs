@@ -2,7 +2,6 @@
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use stride_datasets::png_io::read_rgb;
 use stride_datasets::synth::motion::{Gait, MotionConfig, PathKind};
@@ -186,21 +185,9 @@ impl SynthArgs {
     }
 }
 
-/// A progress bar on stderr.
-pub fn progress_bar(total: usize, what: &str) -> ProgressBar {
-    let pb = ProgressBar::new(total as u64);
-    pb.set_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    pb.set_message(what.to_owned());
-    pb
-}
-
 /// Generates a sequence with a progress bar; returns its summary.
 pub fn synthesize(config: &SynthConfig, out: &Path, overwrite: bool) -> Result<SynthSummary> {
-    let pb = progress_bar(config.frames, "rendering");
+    let pb = crate::pipeline::progress_bar(config.frames, "rendering", true);
     let summary = generate(config, out, overwrite, &mut |done, _| {
         pb.set_position(done as u64)
     })

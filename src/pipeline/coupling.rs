@@ -25,6 +25,8 @@ pub enum Schedule {
 
 /// The back end beside the odometry, and the keyframes whose corrections are due.
 pub(crate) struct Coupling {
+    /// The back end's configuration, for the report.
+    pub(crate) config: BackendConfig,
     pub(crate) thread: BackendThread,
     pub(crate) schedule: Schedule,
     /// Keyframes sent and not yet answered: identifier, frame position, odometry pose.
@@ -81,7 +83,8 @@ impl Coupling {
 }
 
 /// Waits for the back end, runs its final optimization and collects its results.
-pub(crate) fn finish_backend(c: Coupling, config: BackendConfig) -> Result<BackendSummary> {
+pub(crate) fn finish_backend(c: Coupling) -> Result<BackendSummary> {
+    let config = c.config;
     let mut reports = c.reports;
     let finished = c.thread.finish().context("finishing the back end")?;
     reports.extend(finished.late_updates.into_iter().map(|u| u.report));

@@ -37,7 +37,6 @@ use stride_frontend::{StageTimes, TrackingStatus, VisualOdometry, VoConfig};
 pub struct Slam {
     vo: VisualOdometry,
     coupling: Option<Coupling>,
-    backend_config: Option<BackendConfig>,
     frames: Vec<FrameRecord>,
     /// Wall time in the odometry (s).
     vo_wall_s: f64,
@@ -53,23 +52,20 @@ impl Slam {
         backend: Option<(BackendConfig, Schedule)>,
     ) -> Result<Self> {
         let vo = VisualOdometry::new(camera, config).context("creating the visual odometry")?;
-        let (coupling, backend_config) = match backend {
-            Some((cfg, schedule)) => (
-                Some(Coupling {
-                    thread: BackendThread::spawn(Backend::new(camera, cfg.clone())?)?,
-                    schedule,
-                    queue: VecDeque::new(),
-                    correction: Isometry3::identity(),
-                    reports: Vec::new(),
-                }),
-                Some(cfg),
-            ),
-            None => (None, None),
+        let coupling = match backend {
+            Some((config, schedule)) => Some(Coupling {
+                thread: BackendThread::spawn(Backend::new(camera, config.clone())?)?,
+                config,
+                schedule,
+                queue: VecDeque::new(),
+                correction: Isometry3::identity(),
+                reports: Vec::new(),
+            }),
+            None => None,
         };
         Ok(Self {
             vo,
             coupling,
-            backend_config,
             frames: Vec::new(),
             vo_wall_s: 0.0,
             wall_s: 0.0,
@@ -162,10 +158,7 @@ impl Slam {
     /// Waits for the back end, runs its final optimization, and returns everything.
     pub fn finish(self) -> Result<RunOutput> {
         let start = Instant::now();
-        let backend = match (self.coupling, self.backend_config) {
-            (Some(c), Some(config)) => Some(finish_backend(c, config)?),
-            _ => None,
-        };
+        let backend = self.coupling.map(finish_backend).transpose()?;
         Ok(RunOutput {
             frames: self.frames,
             vo_wall_s: self.vo_wall_s,
@@ -175,18 +168,19 @@ impl Slam {
     }
 }
 
-fn progress_bar(total: usize, show: bool) -> ProgressBar {
+/// A progress bar on stderr labelled `what` (hidden when `show` is false): the one style of
+/// every long command.
+pub fn progress_bar(total: usize, what: &str, show: bool) -> ProgressBar {
     if !show {
         return ProgressBar::hidden();
     }
     let pb = ProgressBar::new(total as u64);
     pb.set_style(
-        ProgressStyle::with_template(
-            "tracking [{bar:30}] {pos}/{len} ({per_sec}, eta {eta}) {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
     );
+    pb.set_message(what.to_owned());
     pb
 }
 
@@ -201,7 +195,7 @@ pub fn run_slam(
 ) -> Result<RunOutput> {
     let mut slam = Slam::new(seq.camera.camera, config, backend)?;
     let stream = seq.stream(max_frames, 4);
-    let pb = progress_bar(stream.len(), progress);
+    let pb = progress_bar(stream.len(), "tracking", progress);
     for item in stream {
         match item {
             Ok(d) => {
