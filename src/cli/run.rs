@@ -63,6 +63,17 @@ pub enum BackendArg {
     None,
 }
 
+impl BackendArg {
+    /// The back end's mode; `None` for the odometry alone.
+    pub fn mode(self) -> Option<BackendMode> {
+        match self {
+            BackendArg::Ba => Some(BackendMode::BundleAdjustment),
+            BackendArg::PoseGraph => Some(BackendMode::PoseGraph),
+            BackendArg::None => None,
+        }
+    }
+}
+
 /// Frames between a keyframe and the application of its correction under the fixed
 /// schedule: time for the local optimization while the odometry goes on.
 pub const SYNC_LAG_FRAMES: usize = 3;
@@ -70,11 +81,10 @@ pub const SYNC_LAG_FRAMES: usize = 3;
 impl RunArgs {
     /// The back end's configuration and schedule, `None` for the odometry alone.
     pub fn backend(&self) -> Option<(BackendConfig, Schedule)> {
-        let mode = match (self.vo_only, self.backend) {
-            (true, _) | (_, BackendArg::None) => return None,
-            (_, BackendArg::Ba) => BackendMode::BundleAdjustment,
-            (_, BackendArg::PoseGraph) => BackendMode::PoseGraph,
-        };
+        if self.vo_only {
+            return None;
+        }
+        let mode = self.backend.mode()?;
         let schedule = if self.free_running {
             Schedule::Free
         } else {

@@ -10,7 +10,7 @@ use clap::Args;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
-use stride_backend::{BackendConfig, BackendMode};
+use stride_backend::BackendConfig;
 use stride_core::frame::RgbdFrame;
 use stride_datasets::tum::{AssociationOptions, CameraSource, TumSequence};
 use stride_eval::{ate, Align, AteOptions, Preset};
@@ -130,11 +130,7 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
         frames.push((f, t.elapsed().as_secs_f64()));
     }
     let decode_ms = median(frames.iter().map(|(_, d)| d * 1e3).collect());
-    let mode = match a.backend {
-        BackendArg::Ba => Some(BackendMode::BundleAdjustment),
-        BackendArg::PoseGraph => Some(BackendMode::PoseGraph),
-        BackendArg::None => None,
-    };
+    let mode = a.backend.mode();
     let with = |schedule| {
         mode.map(|mode| {
             let c = BackendConfig {
@@ -181,7 +177,7 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
     };
     let report = json!({
         "frames": frames.len(), "runs": a.runs, "opencv_threads": a.threads,
-        "decode_ms_median": decode_ms, "backend": format!("{:?}", a.backend).to_lowercase(),
+        "decode_ms_median": decode_ms, "backend": mode.map_or("none", |m| m.as_str()),
         "slam": s, "slam_free_running": sf, "slam_odometry_without_back_end": sv,
         "odometry_alone": v, "orbslam3": orb,
         "slam_over_orbslam3_fps": f(&s, "fps_median") / o("fps_track", "median"),
