@@ -87,7 +87,7 @@ impl Slam {
         let start = Instant::now();
         let (wait_s, correction) = self.take_due()?;
         let t0 = Instant::now();
-        let r = self.vo.process(frame)?;
+        let mut r = self.vo.process(frame)?;
         self.vo_wall_s += t0.elapsed().as_secs_f64();
         if r.status == TrackingStatus::Lost {
             tracing::warn!(
@@ -96,7 +96,7 @@ impl Slam {
             );
         }
         let position = self.frames.len();
-        if let (Some(c), Some(info)) = (self.coupling.as_mut(), r.new_keyframe.clone()) {
+        if let (Some(c), Some(info)) = (self.coupling.as_mut(), r.new_keyframe.take()) {
             c.queue.push_back((info.id, position, r.world_from_camera));
             c.thread.send(KeyframeInput {
                 frame_index: r.index,
