@@ -96,7 +96,7 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
         },
         Err(r) => rej.count(r),
     };
-    match frame.cloud {
+    match frame.cloud() {
         Cloud::Depth { depth_m, camera } => {
             let h = depth_m.height() as usize;
             let rays = rays.rays(camera);
@@ -162,7 +162,7 @@ pub fn to_map_points<M: HeightModel + ?Sized>(
         return (vec![None; frame.len()], rej);
     }
     let place = Placement::new(&t, model.range_m());
-    let results: Vec<Result<HeightSample, Reason>> = match frame.cloud {
+    let results: Vec<Result<HeightSample, Reason>> = match frame.cloud() {
         Cloud::Depth { depth_m, camera } => {
             let w = (depth_m.width() as usize).max(1);
             let mut cache = RayCache::default();

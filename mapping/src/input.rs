@@ -7,6 +7,8 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 use stride_core::uncertainty::PrimeSenseModel;
 
+use crate::MappingError;
+
 /// The measurements of one sensor frame.
 #[derive(Debug, Clone, Copy)]
 pub enum Cloud<'a> {
@@ -27,18 +29,73 @@ pub enum Cloud<'a> {
     },
 }
 
-/// One frame for a mapper.
+/// One frame for a mapper. Built by [`SensorFrame::depth`] or [`SensorFrame::points`],
+/// which check that the measurements are consistent (a depth image of its camera's size, one
+/// covariance per point), so a mapper never sees a frame whose pixels it would misplace.
 #[derive(Debug, Clone, Copy)]
 pub struct SensorFrame<'a> {
-    /// The measurements.
-    pub cloud: Cloud<'a>,
-    /// `map_from_sensor`: the sensor pose in the map frame (z up).
+    /// The measurements (private: consistent by construction).
+    cloud: Cloud<'a>,
+    /// `map_from_sensor`: the sensor pose in the map frame (z up, m). A non-finite pose is
+    /// allowed here; the mappers drop such a frame whole and count it (`bad_pose`).
     pub map_from_sensor: Isometry3<f64>,
     /// Time (s).
     pub time_s: f64,
 }
 
-impl SensorFrame<'_> {
+impl<'a> SensorFrame<'a> {
+    /// A depth image (metres along the optical axis, 0 = no return) seen by `camera` from
+    /// `map_from_sensor` at `time_s` (s). Errors when the image's size is not the camera's.
+    pub fn depth(
+        depth_m: &'a DepthImage,
+        camera: &'a PinholeCamera,
+        map_from_sensor: Isometry3<f64>,
+        time_s: f64,
+    ) -> Result<Self, MappingError> {
+        if (depth_m.width(), depth_m.height()) != (camera.width, camera.height) {
+            return Err(MappingError::DepthSize {
+                width: depth_m.width(),
+                height: depth_m.height(),
+                camera_width: camera.width,
+                camera_height: camera.height,
+            });
+        }
+        Ok(Self {
+            cloud: Cloud::Depth { depth_m, camera },
+            map_from_sensor,
+            time_s,
+        })
+    }
+
+    /// Points in the sensor frame (m) with one covariance each (m², sensor frame), taken
+    /// from `map_from_sensor` at `time_s` (s). Errors when the counts differ.
+    pub fn points(
+        points: &'a [Point3<f64>],
+        covariances: &'a [Matrix3<f64>],
+        map_from_sensor: Isometry3<f64>,
+        time_s: f64,
+    ) -> Result<Self, MappingError> {
+        if points.len() != covariances.len() {
+            return Err(MappingError::CovarianceCount {
+                points: points.len(),
+                covariances: covariances.len(),
+            });
+        }
+        Ok(Self {
+            cloud: Cloud::Points {
+                points,
+                covariances,
+            },
+            map_from_sensor,
+            time_s,
+        })
+    }
+
+    /// The measurements.
+    pub fn cloud(&self) -> Cloud<'a> {
+        self.cloud
+    }
+
     /// Number of measurements (pixels of a depth image, or points).
     pub fn len(&self) -> usize {
         match self.cloud {
@@ -548,7 +605,6 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
             } else if !(p.var.is_finite() && p.var > 0.0) {
                 Reason::BadVariance
             } else if !(p.x.is_finite() && p.y.is_finite()) {
-                // A pixel outside the camera's ray table (image larger than the camera).
                 Reason::NonFinite
             } else {
                 debug_assert!(is_edge(d, near));

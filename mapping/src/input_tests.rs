@@ -41,14 +41,7 @@ fn bad_measurements_are_dropped_and_counted() {
     *depth.get_mut(1, 0).unwrap() = f32::NAN;
     *depth.get_mut(2, 0).unwrap() = f32::INFINITY;
     *depth.get_mut(3, 0).unwrap() = 9.0;
-    let frame = SensorFrame {
-        cloud: Cloud::Depth {
-            depth_m: &depth,
-            camera: &cam,
-        },
-        map_from_sensor: Isometry3::identity(),
-        time_s: 0.0,
-    };
+    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
     let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
     assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 12);
     assert_eq!((rej.no_return, rej.non_finite, rej.out_of_range), (1, 2, 1));
@@ -68,15 +61,37 @@ fn bad_measurements_are_dropped_and_counted() {
         Matrix3::zeros(),
         Matrix3::identity(),
     ];
-    let frame = SensorFrame {
-        cloud: Cloud::Points {
-            points: &points,
-            covariances: &covs,
-        },
-        map_from_sensor: Isometry3::identity(),
-        time_s: 0.0,
-    };
+    let frame = SensorFrame::points(&points, &covs, Isometry3::identity(), 0.0).unwrap();
     let (pts, rej) = to_map_points(&frame, &PrimeSenseHeight::default());
     assert_eq!(pts.iter().filter(|p| p.is_some()).count(), 1);
     assert_eq!((rej.bad_variance, rej.non_finite), (1, 1));
+}
+
+#[test]
+fn inconsistent_frames_cannot_be_built() {
+    // A depth image of another size than its camera would be back-projected along the wrong
+    // rays (or partly not at all): the frame is refused, naming both sizes.
+    let cam = PinholeCamera::new(10.0, 10.0, 1.5, 1.5, 4, 4).unwrap();
+    let depth = DepthImage::filled(5, 4, 1.0);
+    let err = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap_err();
+    assert_eq!(
+        err,
+        crate::MappingError::DepthSize {
+            width: 5,
+            height: 4,
+            camera_width: 4,
+            camera_height: 4
+        }
+    );
+    assert!(err.to_string().contains("5x4") && err.to_string().contains("4x4"));
+    let points = [Point3::new(0.0, 0.0, 1.0); 3];
+    let covs = [Matrix3::identity(); 2];
+    let err = SensorFrame::points(&points, &covs, Isometry3::identity(), 0.0).unwrap_err();
+    assert!(matches!(
+        err,
+        crate::MappingError::CovarianceCount {
+            points: 3,
+            covariances: 2
+        }
+    ));
 }

@@ -20,6 +20,7 @@
 
 mod binned;
 mod column;
+mod error;
 pub mod fankhauser;
 pub mod input;
 pub mod metrics;
@@ -29,6 +30,7 @@ pub mod stack;
 pub mod stereo;
 pub mod window;
 
+pub use error::MappingError;
 use input::{Rejections, SensorFrame};
 use stride_core::grid::{Grid, GridGeometry};
 

@@ -503,7 +503,7 @@ impl ElevationMapper for StackMapper {
             overflow += o;
             targets.extend(t);
         }
-        let image = match (cfg.see_through_check, frame.cloud) {
+        let image = match (cfg.see_through_check, frame.cloud()) {
             (true, Cloud::Depth { depth_m, camera }) => {
                 Some((depth_m, camera, &frame.map_from_sensor))
             }

@@ -23,14 +23,7 @@ fn integrate(
     let inv = pose.inverse();
     let pts: Vec<Point3<f64>> = world.iter().map(|p| inv * p).collect();
     let covs = vec![Matrix3::identity() * 2.5e-5; pts.len()];
-    m.integrate(&SensorFrame {
-        cloud: Cloud::Points {
-            points: &pts,
-            covariances: &covs,
-        },
-        map_from_sensor: pose,
-        time_s: 0.0,
-    })
+    m.integrate(&SensorFrame::points(&pts, &covs, pose, 0.0).unwrap())
 }
 
 /// Ground points (z = 0) on a 5 mm lattice over `[x0, x1] x [y0, y1]`.
@@ -171,14 +164,7 @@ fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
             Point3::new(0.0, f64::INFINITY, 1.0),
             Point3::new(0.0, 0.0, f64::NEG_INFINITY),
         ];
-        let s = m.integrate(&SensorFrame {
-            cloud: Cloud::Points {
-                points: &bad,
-                covariances: &[Matrix3::identity() * 1e-4; 3],
-            },
-            map_from_sensor: pose,
-            time_s: 0.1,
-        });
+        let s = m.integrate(&SensorFrame::points(&bad, &[Matrix3::identity() * 1e-4; 3], pose, 0.1).unwrap());
         assert_eq!(
             (s.rejected.non_finite, s.points_used),
             (3, 0),
@@ -204,14 +190,7 @@ fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
             Matrix3::identity() * -1e-4,
             Matrix3::identity() * f64::NAN,
         ];
-        let s = m.integrate(&SensorFrame {
-            cloud: Cloud::Points {
-                points: &p,
-                covariances: &covs,
-            },
-            map_from_sensor: pose,
-            time_s: 0.2,
-        });
+        let s = m.integrate(&SensorFrame::points(&p, &covs, pose, 0.2).unwrap());
         assert_eq!(
             (s.rejected.bad_variance, s.points_used),
             (3, 0),
@@ -240,14 +219,7 @@ fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
         let p: Vec<Point3<f64>> = world.iter().map(|q| pose.inverse() * q).collect();
         let covs = [Matrix3::identity() * 1e-60, Matrix3::identity() * 1e300];
         for k in 0..3 {
-            m.integrate(&SensorFrame {
-                cloud: Cloud::Points {
-                    points: &p,
-                    covariances: &covs,
-                },
-                map_from_sensor: pose,
-                time_s: 0.3 + 0.1 * f64::from(k),
-            });
+            m.integrate(&SensorFrame::points(&p, &covs, pose, 0.3 + 0.1 * f64::from(k)).unwrap());
         }
         let after = m.export();
         let finite = |l: &MapLayers| {

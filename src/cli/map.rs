@@ -15,7 +15,7 @@ use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
-use stride_mapping::input::{Cloud, Rejections, SensorFrame};
+use stride_mapping::input::{Rejections, SensorFrame};
 use stride_mapping::metrics::{
     compare, floor_fit, performance_index, phantoms, FloorFit, MapScore, PhantomScore,
 };
@@ -231,14 +231,8 @@ pub fn map_sequence(
             continue;
         };
         counts.mapped += 1;
-        let sf = SensorFrame {
-            cloud: Cloud::Depth {
-                depth_m: &frame.depth_m,
-                camera: &seq.camera.camera,
-            },
-            map_from_sensor: pose,
-            time_s: frame.t_depth_s,
-        };
+        let sf = SensorFrame::depth(&frame.depth_m, &seq.camera.camera, pose, frame.t_depth_s)
+            .with_context(|| format!("frame {} of {}", frame.index, seq.dir.display()))?;
         for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
             let u = m.integrate(&sf);
             s.0.push(u.update_s);

@@ -34,7 +34,7 @@ pub struct MapBenchArgs {
 pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     use stride_datasets::tum::{AssociationOptions, TumSequence};
     use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
-    use stride_mapping::input::{Cloud, SensorFrame};
+    use stride_mapping::input::SensorFrame;
     use stride_mapping::stack::{StackConfig, StackMapper};
     use stride_mapping::ElevationMapper;
     let tmp = tempfile::tempdir()?;
@@ -93,14 +93,8 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     let mut phases: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; mappers.len()];
     let mut used = vec![0usize; mappers.len()];
     for (f, pose) in &frames {
-        let sf = SensorFrame {
-            cloud: Cloud::Depth {
-                depth_m: &f.depth_m,
-                camera: &seq.camera.camera,
-            },
-            map_from_sensor: *pose,
-            time_s: f.t_depth_s,
-        };
+        let sf = SensorFrame::depth(&f.depth_m, &seq.camera.camera, *pose, f.t_depth_s)
+            .with_context(|| format!("frame {}", f.index))?;
         for (((m, t), u), ph) in mappers
             .iter_mut()
             .zip(&mut times)
