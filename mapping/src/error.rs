@@ -35,3 +35,70 @@ pub enum MappingError {
         reason: &'static str,
     },
 }
+
+/// Largest window accepted, in cells per side (16.8 million cells: 1 mm cells over 4 m).
+pub const MAX_CELLS_PER_SIDE: usize = 4096;
+
+/// Checks a parameter that must be finite and positive.
+pub(crate) fn positive(name: &'static str, value: f64) -> Result<(), MappingError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(MappingError::Parameter {
+            name,
+            value,
+            reason: "must be positive and finite",
+        })
+    }
+}
+
+/// Checks a parameter that must be finite and not negative.
+pub(crate) fn non_negative(name: &'static str, value: f64) -> Result<(), MappingError> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(MappingError::Parameter {
+            name,
+            value,
+            reason: "must be finite and not negative",
+        })
+    }
+}
+
+/// Checks a depth range `[min_m, max_m]` (m): finite, not negative, min below max.
+pub(crate) fn depth_range(min_m: f64, max_m: f64) -> Result<(), MappingError> {
+    non_negative("min_depth_m", min_m)?;
+    positive("max_depth_m", max_m)?;
+    if min_m < max_m {
+        Ok(())
+    } else {
+        Err(MappingError::Parameter {
+            name: "max_depth_m",
+            value: max_m,
+            reason: "must exceed min_depth_m",
+        })
+    }
+}
+
+/// Checks a moving window's parameters (m) and returns its number of cells per side:
+/// positive sizes, between 8 and [`MAX_CELLS_PER_SIDE`] cells per side.
+pub(crate) fn window_cells(
+    resolution_m: f64,
+    size_m: f64,
+    lookahead_m: f64,
+    recenter_threshold_m: f64,
+) -> Result<usize, MappingError> {
+    positive("resolution_m", resolution_m)?;
+    positive("size_m", size_m)?;
+    non_negative("lookahead_m", lookahead_m)?;
+    non_negative("recenter_threshold_m", recenter_threshold_m)?;
+    let cells = (size_m / resolution_m).round();
+    if !(8.0..=MAX_CELLS_PER_SIDE as f64).contains(&cells) {
+        return Err(MappingError::Parameter {
+            name: "size_m",
+            value: size_m,
+            reason: "must hold between 8 and 4096 cells of resolution_m per side",
+        });
+    }
+    Ok(cells as usize)
+}

@@ -11,6 +11,7 @@
 //! left out (no pose covariance is available here). Points are applied in pixel order, as
 //! the original applies them in cloud order.
 
+use crate::error::{self, MappingError};
 use crate::input::{
     prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
 };
@@ -157,11 +158,43 @@ pub struct FankhauserMapper {
     t0: Option<f64>,
 }
 
+impl FankhauserConfig {
+    /// Checks every parameter ([`FankhauserMapper::new`] does): the window as
+    /// [`crate::stack::StackConfig::validate`], a positive Mahalanobis threshold, noise and
+    /// duration not negative, `0 < min_variance <= max_variance`, a depth range with
+    /// `min < max`. Returns the window's cells per side.
+    pub fn validate(&self) -> Result<usize, MappingError> {
+        let cells = error::window_cells(
+            self.resolution_m,
+            self.size_m,
+            self.lookahead_m,
+            self.recenter_threshold_m,
+        )?;
+        error::positive("mahalanobis_threshold", self.mahalanobis_threshold)?;
+        error::non_negative("multi_height_noise", self.multi_height_noise)?;
+        error::non_negative("scanning_duration_s", self.scanning_duration_s)?;
+        error::positive("min_variance", self.min_variance)?;
+        error::positive("max_variance", self.max_variance)?;
+        if self.max_variance < self.min_variance {
+            return Err(MappingError::Parameter {
+                name: "max_variance",
+                value: self.max_variance,
+                reason: "must not be below min_variance",
+            });
+        }
+        error::depth_range(self.sensor.min_depth_m, self.sensor.max_depth_m)?;
+        if let Some(e) = &self.edge_filter {
+            e.validate()?;
+        }
+        Ok(cells)
+    }
+}
+
 impl FankhauserMapper {
-    /// A mapper with these parameters.
-    pub fn new(cfg: FankhauserConfig) -> Self {
-        let size = ((cfg.size_m / cfg.resolution_m).round() as usize).max(8);
-        Self {
+    /// A mapper with these parameters, once [`FankhauserConfig::validate`] accepts them.
+    pub fn new(cfg: FankhauserConfig) -> Result<Self, MappingError> {
+        let size = cfg.validate()?;
+        Ok(Self {
             window: Window::new(size, cfg.resolution_m, (0, 0)),
             cfg,
             archive: HashMap::new(),
@@ -169,7 +202,7 @@ impl FankhauserMapper {
             binned: Binned::default(),
             frame_no: 0,
             t0: None,
-        }
+        })
     }
 
     /// Keeps the window ahead of the sensor; evicted cells go to the archive.

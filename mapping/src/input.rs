@@ -145,6 +145,21 @@ pub struct EdgeFilter {
     pub sigmas: f64,
 }
 
+impl EdgeFilter {
+    /// Checks the parameters: the angle within (0, 90) degrees, `sigmas` finite and not
+    /// negative.
+    pub fn validate(&self) -> Result<(), MappingError> {
+        if !(self.min_grazing_rad > 0.0 && self.min_grazing_rad < std::f64::consts::FRAC_PI_2) {
+            return Err(MappingError::Parameter {
+                name: "min_grazing_rad",
+                value: self.min_grazing_rad,
+                reason: "must lie strictly between 0 and pi/2",
+            });
+        }
+        crate::error::non_negative("sigmas", self.sigmas)
+    }
+}
+
 impl Default for EdgeFilter {
     /// 8 degrees (a floor 4 m away seen from 0.5 m is at 7 degrees and loses no more
     /// pixels than the sensor already does at such angles), 3 standard deviations.

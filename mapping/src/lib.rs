@@ -14,13 +14,15 @@
 //!   (section 4.1).
 //! * [`metrics`]: MSE against ground truth, coverage, and the performance index (eq. 13).
 //! * [`post`]: the median filter that fills small holes and removes isolated cells.
+//! * [`error`]: what a mapper refuses to be built from (invalid parameters, inconsistent
+//!   frames); a mapper that exists has valid parameters.
 //!
 //! Mapping never depends on the SLAM crates: it takes poses and measurements, so it serves
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
 
 mod binned;
 mod column;
-mod error;
+pub mod error;
 pub mod fankhauser;
 pub mod input;
 pub mod metrics;

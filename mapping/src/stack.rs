@@ -33,6 +33,7 @@
 //! [`ElevationMapper::finished`], when [`StackConfig::median_filter`] asks for it.
 
 use crate::column::{Accs, Cell, Stack};
+use crate::error::{self, MappingError};
 use crate::input::{
     prepare_binned, Binned, Cloud, EdgeFilter, PrimeSenseHeight, RayCache, SensorFrame,
 };
@@ -155,13 +156,35 @@ pub struct StackMapper {
 /// results never depend on the thread count.
 const BANDS: usize = 32;
 
+impl StackConfig {
+    /// Checks every parameter ([`StackMapper::new`] does): a window of 8 to
+    /// [`crate::error::MAX_CELLS_PER_SIDE`] cells per side, positive voxel height and
+    /// visibility bin, a depth range with `min < max`, an edge filter's angle within
+    /// (0, 90) degrees. Returns the window's cells per side.
+    pub fn validate(&self) -> Result<usize, MappingError> {
+        let cells = error::window_cells(
+            self.resolution_m,
+            self.size_m,
+            self.lookahead_m,
+            self.recenter_threshold_m,
+        )?;
+        error::positive("voxel_height_m", self.voxel_height_m)?;
+        error::positive("visibility_bin_m", self.visibility_bin_m)?;
+        error::depth_range(self.sensor.min_depth_m, self.sensor.max_depth_m)?;
+        if let Some(e) = &self.edge_filter {
+            e.validate()?;
+        }
+        Ok(cells)
+    }
+}
+
 impl StackMapper {
-    /// A mapper with these parameters.
-    pub fn new(cfg: StackConfig) -> Self {
-        let size = ((cfg.size_m / cfg.resolution_m).round() as usize).max(8);
+    /// A mapper with these parameters, once [`StackConfig::validate`] accepts them.
+    pub fn new(cfg: StackConfig) -> Result<Self, MappingError> {
+        let size = cfg.validate()?;
         let window = Window::new(size, cfg.resolution_m, (0, 0));
         let band_cells = size.div_ceil(BANDS) * size;
-        Self {
+        Ok(Self {
             cfg,
             stacks: vec![Stack::default(); size * size],
             accs: vec![Accs::default(); size * size],
@@ -173,7 +196,7 @@ impl StackMapper {
             band_cells,
             los_table: Vec::new(),
             frame_no: 0,
-        }
+        })
     }
 
     /// The parameters.

@@ -1,7 +1,6 @@
 //! Tests of `stack`.
 
 use super::*;
-use crate::input::Cloud;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// A sensor 0.5 m above the origin looking along +x (camera z forward, x right, y down).
@@ -75,7 +74,7 @@ fn config() -> StackConfig {
 
 #[test]
 fn vitality_establishes_a_column_after_three_updates_and_forgets_isolated_ones() {
-    let mut m = StackMapper::new(config());
+    let mut m = StackMapper::new(config()).unwrap();
     let patch = ground(1.0, 1.05, 0.0, 0.05);
     let speck = [Point3::new(1.5, 0.5, 0.3)];
     integrate(
@@ -107,7 +106,8 @@ fn visibility_check_removes_an_obstacle_the_sensor_sees_past() {
         let mut m = StackMapper::new(StackConfig {
             visibility_check: check,
             ..config()
-        });
+        })
+        .unwrap();
         // A spurious 30 cm obstacle at 1 m (e.g. from an earlier pose error), seen three
         // times so that it is established.
         let spurious: Vec<Point3<f64>> = ground(1.0, 1.03, -0.015, 0.015)
@@ -146,11 +146,14 @@ fn mapped(m: &mut dyn ElevationMapper) -> MapLayers {
 #[test]
 fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
     let mappers: [fn() -> Box<dyn ElevationMapper>; 2] = [
-        || Box::new(StackMapper::new(config())),
+        || Box::new(StackMapper::new(config()).unwrap()),
         || {
-            Box::new(crate::fankhauser::FankhauserMapper::new(
-                crate::fankhauser::FankhauserConfig::default(),
-            ))
+            Box::new(
+                crate::fankhauser::FankhauserMapper::new(
+                    crate::fankhauser::FankhauserConfig::default(),
+                )
+                .unwrap(),
+            )
         },
     ];
     for make in mappers {
@@ -164,7 +167,9 @@ fn bad_input_is_dropped_counted_and_leaves_the_map_as_it_was() {
             Point3::new(0.0, f64::INFINITY, 1.0),
             Point3::new(0.0, 0.0, f64::NEG_INFINITY),
         ];
-        let s = m.integrate(&SensorFrame::points(&bad, &[Matrix3::identity() * 1e-4; 3], pose, 0.1).unwrap());
+        let s = m.integrate(
+            &SensorFrame::points(&bad, &[Matrix3::identity() * 1e-4; 3], pose, 0.1).unwrap(),
+        );
         assert_eq!(
             (s.rejected.non_finite, s.points_used),
             (3, 0),
@@ -251,7 +256,7 @@ fn results_do_not_depend_on_the_thread_count() {
             .build()
             .unwrap();
         pool.install(|| {
-            let mut m = StackMapper::new(StackConfig::default());
+            let mut m = StackMapper::new(StackConfig::default()).unwrap();
             let mut pts = ground(0.8, 2.5, -0.6, 0.6);
             pts.extend(
                 ground(1.2, 1.4, -0.1, 0.1)
@@ -297,7 +302,8 @@ fn finished_applies_the_configured_median_filter_and_only_it() {
         let mut m = StackMapper::new(StackConfig {
             median_filter: filter,
             ..config()
-        });
+        })
+        .unwrap();
         for _ in 0..3 {
             integrate(&mut m, sensor_pose(), &patch);
         }
@@ -319,4 +325,106 @@ fn finished_applies_the_configured_median_filter_and_only_it() {
             }
         }
     }
+}
+
+#[test]
+fn mappers_refuse_invalid_parameters() {
+    use crate::fankhauser::{FankhauserConfig, FankhauserMapper};
+    use crate::MappingError;
+    let name = |r: Result<usize, MappingError>| match r {
+        Err(MappingError::Parameter { name, .. }) => name,
+        other => panic!("expected a parameter error, got {other:?}"),
+    };
+    let d = StackConfig::default();
+    assert_eq!(d.validate(), Ok(400));
+    let bad = |cfg: StackConfig| name(cfg.validate());
+    assert_eq!(
+        bad(StackConfig {
+            resolution_m: -0.01,
+            ..d.clone()
+        }),
+        "resolution_m"
+    );
+    assert_eq!(
+        bad(StackConfig {
+            size_m: f64::NAN,
+            ..d.clone()
+        }),
+        "size_m"
+    );
+    assert_eq!(
+        bad(StackConfig {
+            size_m: 0.05,
+            ..d.clone()
+        }),
+        "size_m"
+    );
+    assert_eq!(
+        bad(StackConfig {
+            resolution_m: 1e-4,
+            ..d.clone()
+        }),
+        "size_m"
+    );
+    assert_eq!(
+        bad(StackConfig {
+            voxel_height_m: 0.0,
+            ..d.clone()
+        }),
+        "voxel_height_m"
+    );
+    let mut sensor = d.sensor;
+    sensor.max_depth_m = sensor.min_depth_m;
+    assert_eq!(
+        bad(StackConfig {
+            sensor,
+            ..d.clone()
+        }),
+        "max_depth_m"
+    );
+    let edge_filter = Some(crate::input::EdgeFilter {
+        min_grazing_rad: 2.0,
+        sigmas: 3.0,
+    });
+    assert_eq!(
+        bad(StackConfig {
+            edge_filter,
+            ..d.clone()
+        }),
+        "min_grazing_rad"
+    );
+    assert!(StackMapper::new(StackConfig {
+        lookahead_m: -1.0,
+        ..d
+    })
+    .is_err());
+    let f = FankhauserConfig::default();
+    assert_eq!(f.validate(), Ok(400));
+    let fbad = |cfg: FankhauserConfig| name(cfg.validate());
+    assert_eq!(
+        fbad(FankhauserConfig {
+            min_variance: 0.0,
+            ..f.clone()
+        }),
+        "min_variance"
+    );
+    assert_eq!(
+        fbad(FankhauserConfig {
+            max_variance: 1e-5,
+            ..f.clone()
+        }),
+        "max_variance"
+    );
+    assert_eq!(
+        fbad(FankhauserConfig {
+            mahalanobis_threshold: f64::INFINITY,
+            ..f.clone()
+        }),
+        "mahalanobis_threshold"
+    );
+    assert!(FankhauserMapper::new(FankhauserConfig {
+        resolution_m: 0.0,
+        ..f
+    })
+    .is_err());
 }

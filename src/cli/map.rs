@@ -21,7 +21,7 @@ use stride_mapping::metrics::{
 };
 use stride_mapping::post::MedianStats;
 use stride_mapping::stack::{StackConfig, StackMapper};
-use stride_mapping::{ElevationMapper, MapLayers};
+use stride_mapping::{ElevationMapper, MapLayers, MappingError};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MapperArg {
@@ -159,20 +159,25 @@ pub fn stack_config(a: &MapArgs) -> StackConfig {
     }
 }
 
-fn make_mappers(a: &MapArgs) -> Vec<Box<dyn ElevationMapper>> {
-    let stack = || -> Box<dyn ElevationMapper> { Box::new(StackMapper::new(stack_config(a))) };
-    let fank = || -> Box<dyn ElevationMapper> {
-        Box::new(FankhauserMapper::new(FankhauserConfig {
+/// The mappers asked for; an error naming the flags when the mapping crate refuses their
+/// parameters.
+fn make_mappers(a: &MapArgs) -> Result<Vec<Box<dyn ElevationMapper>>> {
+    let stack = || -> Result<Box<dyn ElevationMapper>, MappingError> {
+        Ok(Box::new(StackMapper::new(stack_config(a))?))
+    };
+    let fank = || -> Result<Box<dyn ElevationMapper>, MappingError> {
+        Ok(Box::new(FankhauserMapper::new(FankhauserConfig {
             resolution_m: a.resolution,
             size_m: a.size,
             ..FankhauserConfig::default()
-        }))
+        })?))
     };
-    match a.mapper {
-        MapperArg::Stack => vec![stack()],
-        MapperArg::Fankhauser => vec![fank()],
-        MapperArg::Both => vec![stack(), fank()],
-    }
+    let mappers = match a.mapper {
+        MapperArg::Stack => vec![stack()?],
+        MapperArg::Fankhauser => vec![fank()?],
+        MapperArg::Both => vec![stack()?, fank()?],
+    };
+    Ok(mappers)
 }
 
 /// Cells within this height of the floor plane (m) count as floor in the flatness fit.
@@ -369,6 +374,12 @@ pub fn run(a: MapArgs) -> Result<()> {
 /// the runs and the frame counts.
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     crate::cli::check_out_dir("--out", &a.out)?;
+    let mappers = make_mappers(a).with_context(|| {
+        format!(
+            "--resolution {} and --size {} give no valid map",
+            a.resolution, a.size
+        )
+    })?;
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -385,17 +396,6 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     } else {
         read_tum_trajectory(Path::new(&a.poses)).context("reading --poses")?
     };
-    if !(a.resolution.is_finite()
-        && a.resolution > 0.0
-        && a.size.is_finite()
-        && a.size > a.resolution * 8.0)
-    {
-        bail!(
-            "--resolution {} and --size {} must be positive, with at least 8 cells per side",
-            a.resolution,
-            a.size
-        );
-    }
     if !(a.drift.is_finite() && a.drift >= 0.0) {
         bail!("--drift {} must be a non-negative percentage", a.drift);
     }
@@ -412,7 +412,7 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
     };
-    let (runs, counts) = map_sequence(&seq, &poses, make_mappers(a), a.max_frames, gt.as_ref())?;
+    let (runs, counts) = map_sequence(&seq, &poses, mappers, a.max_frames, gt.as_ref())?;
     if counts.mapped == 0 {
         anyhow::bail!(
             "no frame could be mapped, nothing written: of {} frames, {} lie outside the poses' \

@@ -80,10 +80,12 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             visibility_check: !a.no_visibility,
             see_through_check: !a.no_see_through,
             ..d
-        })));
+        })?));
     }
     if a.mapper != MapperArg::Stack {
-        mappers.push(Box::new(FankhauserMapper::new(FankhauserConfig::default())));
+        mappers.push(Box::new(
+            FankhauserMapper::new(FankhauserConfig::default())?,
+        ));
     }
     let mut out = serde_json::Map::new();
     // The mappers take turns frame by frame, so that both see the same machine state (these
