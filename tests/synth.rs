@@ -57,7 +57,7 @@ fn depth_matches_the_geometry_within_the_noise_model() {
     let cam = *synth.camera();
     let gt = synth.ground_truth_elevation();
     let noise = cfg.depth_noise;
-    let (w, h) = (cam.width as usize, cam.height as usize);
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
     let o = pose.translation.vector;
     let (mut floor_px, mut exact) = (0usize, 0usize);
     let mut residuals = Vec::new();
@@ -65,8 +65,8 @@ fn depth_matches_the_geometry_within_the_noise_model() {
         for u in 2..w - 2 {
             let d = pose.rotation
                 * Vector3::new(
-                    (u as f64 - cam.cx) / cam.fx,
-                    (v as f64 - cam.cy) / cam.fy,
+                    (u as f64 - cam.cx()) / cam.fx(),
+                    (v as f64 - cam.cy()) / cam.fy(),
                     1.0,
                 );
             if d.z >= -1e-6 {
@@ -254,7 +254,7 @@ fn output_loads_unchanged_in_the_readers_and_is_deterministic() {
     // The TUM reader opens it unchanged, with its camera.json.
     let seq = TumSequence::open(&a, None, AssociationOptions::default()).unwrap();
     assert_eq!(seq.len(), 6);
-    assert_eq!(seq.camera.camera.width, 160);
+    assert_eq!(seq.camera.camera.width(), 160);
     let frame = seq.load_frame(3).unwrap();
     assert!(
         frame

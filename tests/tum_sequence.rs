@@ -17,7 +17,7 @@ fn teddy_200_opens_associates_and_decodes() {
     let seq = TumSequence::open(&dir, None, AssociationOptions::default()).unwrap();
     // The folder name says freiburg3: fr3 intrinsics, depth scale 5000.
     assert_eq!(seq.camera_source, CameraSource::FolderName("fr3"));
-    assert_eq!(seq.camera.camera.fx, 535.4);
+    assert_eq!(seq.camera.camera.fx(), 535.4);
     // 200 colour and 200 depth images; TUM's rule (|dt| < 0.02 s, one-to-one) pairs 193.
     assert_eq!(seq.len(), 193);
     assert_eq!(seq.unmatched_rgb, 7);

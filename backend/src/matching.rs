@@ -126,12 +126,12 @@ fn projection_sigma_px(
 ) -> f64 {
     let z = q.z.max(1e-3);
     let j_pix = Matrix2x3::new(
-        camera.fx / z,
+        camera.fx() / z,
         0.0,
-        -camera.fx * q.x / (z * z),
+        -camera.fx() * q.x / (z * z),
         0.0,
-        camera.fy / z,
-        -camera.fy * q.y / (z * z),
+        camera.fy() / z,
+        -camera.fy() * q.y / (z * z),
     );
     let mut j_q = Matrix3x6::zeros();
     j_q.fixed_view_mut::<3, 3>(0, 0)
@@ -156,7 +156,7 @@ pub fn match_points(
     candidates: &[(PointId, &MapPoint)],
     params: &MatchParams,
 ) -> (Vec<Match>, Vec<PointId>) {
-    let grid = FeatureGrid::new(features, eligible, camera.width, camera.height);
+    let grid = FeatureGrid::new(features, eligible, camera.width(), camera.height());
     let camera_from_world = world_from_camera.inverse();
     let r_cw = camera_from_world.rotation.to_rotation_matrix().into_inner();
     let model = Matrix3::identity() * params.model_noise_m * params.model_noise_m;

@@ -97,21 +97,30 @@ impl BrownConrady {
 /// A pinhole camera: focal lengths and principal point in pixels, image size in pixels, and
 /// optional Brown-Conrady distortion.
 #[derive(Debug, Clone, Copy, PartialEq)]
+///
+/// Invariant (why the fields are private): focal lengths and the image size are positive,
+/// every number is finite, and distortion is `None` or has a non-zero coefficient. Only
+/// [`PinholeCamera::new`] and [`PinholeCamera::with_distortion`] build one, so a camera
+/// with a negative focal length cannot exist:
+///
+/// ```compile_fail
+/// let mut c = stride_core::camera::PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480)?;
+/// c.fx = -1.0; // private field: does not compile
+/// # Ok::<(), stride_core::camera::CameraError>(())
+/// ```
+///
+/// ```
+/// use stride_core::camera::PinholeCamera;
+/// assert!(PinholeCamera::new(-1.0, 525.0, 319.5, 239.5, 640, 480).is_err());
+/// ```
 pub struct PinholeCamera {
-    /// Focal length along u (pixels).
-    pub fx: f64,
-    /// Focal length along v (pixels).
-    pub fy: f64,
-    /// Principal point u (pixels).
-    pub cx: f64,
-    /// Principal point v (pixels).
-    pub cy: f64,
-    /// Image width (pixels).
-    pub width: u32,
-    /// Image height (pixels).
-    pub height: u32,
-    /// Lens distortion; `None` for an ideal pinhole.
-    pub distortion: Option<BrownConrady>,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    width: u32,
+    height: u32,
+    distortion: Option<BrownConrady>,
 }
 
 fn check(name: &'static str, value: f64, positive: bool) -> Result<(), CameraError> {
@@ -160,6 +169,27 @@ impl PinholeCamera {
         })
     }
 
+    /// The default intrinsics of a 640 x 480 PrimeSense/Kinect camera in ROS's openni
+    /// driver (fx = fy = 525, cx = 319.5, cy = 239.5 pixels, no distortion), which the TUM
+    /// benchmark documents for uncalibrated use.
+    pub const KINECT_DEFAULT: Self = Self {
+        fx: 525.0,
+        fy: 525.0,
+        cx: 319.5,
+        cy: 239.5,
+        width: 640,
+        height: 480,
+        distortion: None,
+    };
+
+    /// The same camera without lens distortion (an ideal pinhole with its intrinsics).
+    pub fn without_distortion(self) -> Self {
+        Self {
+            distortion: None,
+            ..self
+        }
+    }
+
     /// The same camera with lens distortion; all-zero coefficients mean none. Non-finite
     /// coefficients are rejected.
     pub fn with_distortion(mut self, d: BrownConrady) -> Result<Self, CameraError> {
@@ -169,6 +199,41 @@ impl PinholeCamera {
         }
         self.distortion = (!d.is_zero()).then_some(d);
         Ok(self)
+    }
+
+    /// Focal length along u (pixels).
+    pub fn fx(&self) -> f64 {
+        self.fx
+    }
+
+    /// Focal length along v (pixels).
+    pub fn fy(&self) -> f64 {
+        self.fy
+    }
+
+    /// Principal point u (pixels).
+    pub fn cx(&self) -> f64 {
+        self.cx
+    }
+
+    /// Principal point v (pixels).
+    pub fn cy(&self) -> f64 {
+        self.cy
+    }
+
+    /// Image width (pixels).
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Image height (pixels).
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Lens distortion; `None` for an ideal pinhole.
+    pub fn distortion(&self) -> Option<&BrownConrady> {
+        self.distortion.as_ref()
     }
 
     /// Projects a camera-frame point (metres) to pixel coordinates, applying distortion.

@@ -52,12 +52,12 @@ impl PrimeSenseModel {
     /// `(u, v)` (px) with depth `d` (m), eq. 11.
     pub fn covariance(&self, camera: &PinholeCamera, u: f64, v: f64, d_m: f64) -> Matrix3<f64> {
         let j = Matrix3::new(
-            d_m / camera.fx,
+            d_m / camera.fx(),
             0.0,
-            (u - camera.cx) / camera.fx,
+            (u - camera.cx()) / camera.fx(),
             0.0,
-            d_m / camera.fy,
-            (v - camera.cy) / camera.fy,
+            d_m / camera.fy(),
+            (v - camera.cy()) / camera.fy(),
             0.0,
             0.0,
             1.0,
@@ -81,8 +81,8 @@ impl PrimeSenseModel {
         d_m: f64,
     ) -> (Point3<f64>, Matrix3<f64>) {
         let p = Point3::new(
-            (u - camera.cx) / camera.fx * d_m,
-            (v - camera.cy) / camera.fy * d_m,
+            (u - camera.cx()) / camera.fx() * d_m,
+            (v - camera.cy()) / camera.fy() * d_m,
             d_m,
         );
         (p, self.covariance(camera, u, v, d_m))

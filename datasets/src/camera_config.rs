@@ -147,14 +147,14 @@ impl CameraConfig {
     pub fn to_json(&self) -> String {
         let c = &self.camera;
         let file = CameraFile {
-            fx: c.fx,
-            fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
-            width: c.width,
-            height: c.height,
+            fx: c.fx(),
+            fy: c.fy(),
+            cx: c.cx(),
+            cy: c.cy(),
+            width: c.width(),
+            height: c.height(),
             depth_scale: self.depth_scale,
-            distortion: c.distortion.map(|d| d.to_array().to_vec()),
+            distortion: c.distortion().map(|d| d.to_array().to_vec()),
         };
         // Serialising plain numbers cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()

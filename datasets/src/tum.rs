@@ -302,7 +302,7 @@ fn load_entry(
         std::fs::read(&entry.depth_path).map_err(|e| DatasetError::io(&entry.depth_path, e))?;
     let rgb = decode_rgb(&rgb_bytes, &entry.rgb_path)?;
     let depth_m = decode_depth(&depth_bytes, &entry.depth_path, camera.depth_scale)?;
-    let (w, h) = (camera.camera.width, camera.camera.height);
+    let (w, h) = (camera.camera.width(), camera.camera.height());
     for (path, iw, ih) in [
         (&entry.rgb_path, rgb.width(), rgb.height()),
         (&entry.depth_path, depth_m.width(), depth_m.height()),

@@ -141,15 +141,15 @@ impl VisualOdometry {
     pub fn process(&mut self, frame: &RgbdFrame) -> Result<FrameResult, FrontendError> {
         let start = Instant::now();
         let (w, h) = (frame.rgb.width(), frame.rgb.height());
-        if (w, h) != (self.camera.width, self.camera.height)
+        if (w, h) != (self.camera.width(), self.camera.height())
             || (frame.depth_m.width(), frame.depth_m.height()) != (w, h)
         {
             return Err(FrontendError::SizeMismatch {
                 index: frame.index,
                 width: w,
                 height: h,
-                camera_width: self.camera.width,
-                camera_height: self.camera.height,
+                camera_width: self.camera.width(),
+                camera_height: self.camera.height(),
             });
         }
         let mut timing = StageTimes::default();

@@ -52,12 +52,12 @@ impl<'a> SensorFrame<'a> {
         map_from_sensor: Isometry3<f64>,
         time_s: f64,
     ) -> Result<Self, MappingError> {
-        if (depth_m.width(), depth_m.height()) != (camera.width, camera.height) {
+        if (depth_m.width(), depth_m.height()) != (camera.width(), camera.height()) {
             return Err(MappingError::DepthSize {
                 width: depth_m.width(),
                 height: depth_m.height(),
-                camera_width: camera.width,
-                camera_height: camera.height,
+                camera_width: camera.width(),
+                camera_height: camera.height(),
             });
         }
         Ok(Self {
@@ -222,8 +222,8 @@ impl HeightModel for PrimeSenseHeight {
     fn pixel_variance(&self, camera: &PinholeCamera, px: &DepthPixel, r3: &Vector3<f64>) -> f64 {
         let (xn, yn, d) = (px.xn, px.yn, px.d_m);
         let s = self.model.sigma_d(d);
-        let a = r3.x * d / camera.fx;
-        let b = r3.y * d / camera.fy;
+        let a = r3.x * d / camera.fx();
+        let b = r3.y * d / camera.fy();
         let c = r3.x * xn + r3.y * yn + r3.z;
         self.model.var_u_px2 * a * a + self.model.var_v_px2 * b * b + s * s * c * c
     }
@@ -304,11 +304,11 @@ pub struct RayCache {
 impl RayCache {
     /// The rays of `camera` (the table is rebuilt only when the camera changes).
     pub fn rays(&mut self, camera: &PinholeCamera) -> Rays<'_> {
-        if camera.distortion.is_none() {
+        if camera.distortion().is_none() {
             return Rays::Pinhole(*camera);
         }
         if self.camera.as_ref() != Some(camera) {
-            let (w, h) = (camera.width as usize, camera.height as usize);
+            let (w, h) = (camera.width() as usize, camera.height() as usize);
             self.rays = (0..w * h)
                 .into_par_iter()
                 .map(|i| {
@@ -321,7 +321,7 @@ impl RayCache {
                 .collect();
             self.camera = Some(*camera);
         }
-        Rays::Table(&self.rays, camera.width as usize)
+        Rays::Table(&self.rays, camera.width() as usize)
     }
 }
 
@@ -340,8 +340,8 @@ impl Rays<'_> {
         out.clear();
         match self {
             Rays::Pinhole(c) => {
-                let (ifx, yn) = (1.0 / c.fx, (v as f64 - c.cy) / c.fy);
-                out.extend((0..width).map(|u| ((u as f64 - c.cx) * ifx, yn)));
+                let (ifx, yn) = (1.0 / c.fx(), (v as f64 - c.cy()) / c.fy());
+                out.extend((0..width).map(|u| ((u as f64 - c.cx()) * ifx, yn)));
             }
             Rays::Table(t, w) => {
                 let row = t.get(v * w..(v + 1) * w).unwrap_or(&[]);
@@ -539,7 +539,7 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
 ) {
     let w = (s.depth.width() as usize).max(1);
     let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
-    let f_px = s.camera.fx;
+    let f_px = s.camera.fx();
     let pl = s.place;
     let (lo, hi) = pl.range;
     let rot = pl.rot;

@@ -50,21 +50,18 @@ fn nine(x: &[f64; N_IN], offset: usize) -> [f64; 9] {
     std::array::from_fn(|i| x.get(offset + i).copied().unwrap_or(0.0))
 }
 
-fn camera_with(base: &PinholeCamera, p: [f64; 9]) -> PinholeCamera {
+/// `base` with the intrinsics `p = [fx, fy, cx, cy, k1, k2, p1, p2, k3]`; `None` when they
+/// make no valid camera.
+fn camera_with(base: &PinholeCamera, p: [f64; 9]) -> Option<PinholeCamera> {
     let [fx, fy, cx, cy, k1, k2, p1, p2, k3] = p;
-    let mut c = *base;
-    c.fx = fx;
-    c.fy = fy;
-    c.cx = cx;
-    c.cy = cy;
-    let d = BrownConrady::from_array([k1, k2, p1, p2, k3]);
-    c.distortion = (!d.is_zero()).then_some(d);
-    c
+    PinholeCamera::new(fx, fy, cx, cy, base.width(), base.height())
+        .and_then(|c| c.with_distortion(BrownConrady::from_array([k1, k2, p1, p2, k3])))
+        .ok()
 }
 
 fn intrinsics_of(c: &PinholeCamera) -> [f64; 9] {
-    let d = c.distortion.unwrap_or_default().to_array();
-    [c.fx, c.fy, c.cx, c.cy, d[0], d[1], d[2], d[3], d[4]]
+    let d = c.distortion().copied().unwrap_or_default().to_array();
+    [c.fx(), c.fy(), c.cx(), c.cy(), d[0], d[1], d[2], d[3], d[4]]
 }
 
 impl StereoModel {
@@ -95,10 +92,11 @@ impl StereoModel {
 
     /// The pipeline: undistort both pixels (eq. 5), rectify (eq. 7: a common rotation that
     /// makes the baseline the x axis, a common focal length), disparity (eq. 8), triangulate
-    /// (eq. 9), back to the left camera frame. `None` for a non-positive disparity.
+    /// (eq. 9), back to the left camera frame. `None` for a non-positive disparity or
+    /// intrinsics that make no camera.
     fn pipeline(&self, x: &[f64; N_IN]) -> Option<Point3<f64>> {
-        let left = camera_with(&self.left, nine(x, 4));
-        let right = camera_with(&self.right, nine(x, 13));
+        let left = camera_with(&self.left, nine(x, 4))?;
+        let right = camera_with(&self.right, nine(x, 13))?;
         let dt = Vector3::new(x[22], x[23], x[24]);
         let dr = nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(x[25], x[26], x[27]));
         let extr = Isometry3::from_parts(
@@ -130,7 +128,7 @@ impl StereoModel {
         if ql.z <= 0.0 || qr.z <= 0.0 {
             return None;
         }
-        let f = 0.5 * (left.fx + right.fx);
+        let f = 0.5 * (left.fx() + right.fx());
         let (ul, vl, ur) = (f * ql.x / ql.z, f * ql.y / ql.z, f * qr.x / qr.z);
         let d = ul - ur;
         if d <= 0.0 {

@@ -68,19 +68,16 @@ impl Default for SynthConfig {
     /// Procedural `mixed` terrain, tripod gait at 0.1 m/s, straight, 150 frames at 30 Hz,
     /// 20 ms exposure with blur, fr1-like intrinsics without distortion.
     fn default() -> Self {
-        let mut camera = CameraConfig::preset("fr1").unwrap_or(CameraConfig {
-            camera: PinholeCamera {
-                fx: 517.3,
-                fy: 516.5,
-                cx: 318.6,
-                cy: 255.3,
-                width: 640,
-                height: 480,
-                distortion: None,
-            },
+        // fr1's intrinsics without its distortion; the fallback is never taken (fr1 is a
+        // built-in preset) but keeps this infallible.
+        let camera = CameraConfig::preset("fr1").unwrap_or(CameraConfig {
+            camera: PinholeCamera::KINECT_DEFAULT,
             depth_scale: 5000.0,
         });
-        camera.camera.distortion = None;
+        let camera = CameraConfig {
+            camera: camera.camera.without_distortion(),
+            ..camera
+        };
         Self {
             terrain: TerrainSource::Procedural {
                 name: "mixed".into(),

@@ -127,8 +127,7 @@ impl Synth {
             1.0,
             config.seed,
         );
-        let mut camera = config.camera.camera;
-        camera.distortion = None;
+        let camera = config.camera.camera.without_distortion();
         Ok(Self {
             config,
             scene,
@@ -198,7 +197,7 @@ impl Synth {
         // tc - readout / 2 + readout * r / (rows - 1). Depth stays global-shutter, so during
         // motion colour and depth disagree slightly, as on a real sensor.
         let rs = cfg.rolling_shutter_s;
-        let rows = self.camera.height.max(2) as usize;
+        let rows = self.camera.height().max(2) as usize;
         let row_poses = |tc: f64| -> Vec<Isometry3<f64>> {
             if rs <= 0.0 {
                 vec![self.state(tc).world_from_camera]
@@ -256,7 +255,7 @@ impl Synth {
         );
         let depth_raw = depth_sensor(
             &geom,
-            self.camera.width as usize,
+            self.camera.width() as usize,
             &cfg.depth_noise,
             cfg.camera.depth_scale,
             cfg.seed,

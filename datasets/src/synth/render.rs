@@ -95,12 +95,12 @@ const LIGHT: [f64; 3] = [0.3294, 0.2353, 0.9143]; // normalised (0.35, 0.25, 0.9
 impl<'a> Renderer<'a> {
     /// A renderer for `camera` (distortion ignored: images are rendered undistorted).
     pub fn new(scene: &'a Scene, camera: PinholeCamera) -> Self {
-        let (w, h) = (camera.width as usize, camera.height as usize);
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
         let mut rays = Vec::with_capacity(w * h);
         for v in 0..h {
             for u in 0..w {
-                let x = (u as f64 - camera.cx) / camera.fx;
-                let y = (v as f64 - camera.cy) / camera.fy;
+                let x = (u as f64 - camera.cx()) / camera.fx();
+                let y = (v as f64 - camera.cy()) / camera.fy();
                 let n = (x * x + y * y + 1.0).sqrt();
                 rays.push([x / n, y / n, 1.0 / n]);
             }
@@ -126,7 +126,7 @@ impl<'a> Renderer<'a> {
         cand: &[super::scene::ScreenBox],
         want_color: bool,
     ) -> (f32, f32, [f32; 3]) {
-        let w = self.camera.width as usize;
+        let w = self.camera.width() as usize;
         let Some(rc) = self.rays.get(idx) else {
             return (0.0, 0.0, [0.0; 3]);
         };
@@ -150,7 +150,7 @@ impl<'a> Renderer<'a> {
                 if !want_color {
                     return (z, cos as f32, [0.0; 3]);
                 }
-                let footprint = hit.t / self.camera.fx / cos.max(0.25);
+                let footprint = hit.t / self.camera.fx() / cos.max(0.25);
                 let a = albedo(
                     hit.material,
                     hit.uv.0,
@@ -173,7 +173,7 @@ impl<'a> Renderer<'a> {
     /// colour; without colour the colour buffer is left black and shading is skipped.
     pub fn render(&self, world_from_camera: &Isometry3<f64>, with_color: bool) -> Geometry {
         let n = self.rays.len();
-        let w = self.camera.width as usize;
+        let w = self.camera.width() as usize;
         let cand = self.scene.screen_boxes(&self.camera, world_from_camera);
         let o = world_from_camera.translation.vector;
         let o = [o.x, o.y, o.z];
@@ -211,7 +211,7 @@ impl<'a> Renderer<'a> {
         pad_px: f64,
         acc: &mut [[f32; 3]],
     ) {
-        let w = self.camera.width as usize;
+        let w = self.camera.width() as usize;
         let Some(mid) = row_poses.get(row_poses.len() / 2) else {
             return;
         };
@@ -231,7 +231,7 @@ impl<'a> Renderer<'a> {
 
     /// World points seen at a few pixels (a 5 x 5 lattice), for estimating image motion.
     pub fn probe_points(&self, world_from_camera: &Isometry3<f64>) -> Vec<Point3<f64>> {
-        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let (w, h) = (self.camera.width() as usize, self.camera.height() as usize);
         let cand = self.scene.screen_boxes(&self.camera, world_from_camera);
         let o = world_from_camera.translation.vector;
         let mut out = Vec::new();
@@ -410,16 +410,17 @@ pub fn rgb_sensor(
     seed: u64,
     frame: u64,
 ) -> RgbImage {
-    let (w, h) = (camera.width as usize, camera.height as usize);
-    let r_max2 = (camera.cx.max(w as f64 - camera.cx)).powi(2)
-        + (camera.cy.max(h as f64 - camera.cy)).powi(2);
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let r_max2 = (camera.cx().max(w as f64 - camera.cx())).powi(2)
+        + (camera.cy().max(h as f64 - camera.cy())).powi(2);
     let mut out = vec![[0u8; 3]; w * h];
     let frame_key = key(&[seed, frame, 0xC010]);
     out.par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
         for (col, px) in dst.iter_mut().enumerate() {
             let i = row * w + col;
             let c = color.get(i).copied().unwrap_or([0.0; 3]);
-            let r2 = ((col as f64 - camera.cx).powi(2) + (row as f64 - camera.cy).powi(2)) / r_max2;
+            let r2 =
+                ((col as f64 - camera.cx()).powi(2) + (row as f64 - camera.cy()).powi(2)) / r_max2;
             let vig = 1.0 - 0.22 * r2;
             for (ch, out_ch) in px.iter_mut().enumerate() {
                 let v = f64::from(c[ch]) * vig;

@@ -269,7 +269,7 @@ impl Scene {
         pad_px: f64,
     ) -> Vec<ScreenBox> {
         let camera_from_world = world_from_camera.inverse();
-        let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+        let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
         self.boxes
             .iter()
             .enumerate()
@@ -282,8 +282,8 @@ impl Scene {
                         behind += 1;
                         continue;
                     }
-                    let u = camera.fx * p.x / p.z + camera.cx;
-                    let v = camera.fy * p.y / p.z + camera.cy;
+                    let u = camera.fx() * p.x / p.z + camera.cx();
+                    let v = camera.fy() * p.y / p.z + camera.cy();
                     u0 = u0.min(u);
                     v0 = v0.min(v);
                     u1 = u1.max(u);
