@@ -71,7 +71,7 @@ pub fn ate(
     let mut warnings = Vec::new();
     if o.preset == Preset::Tum && o.align != Align::Se3 {
         warnings.push(format!(
-            "the TUM tool always aligns with SE(3); --align {} departs from it",
+            "the TUM tool always aligns with SE(3); alignment {} departs from it",
             o.align
         ));
     }
@@ -363,7 +363,7 @@ mod tests {
             },
         )
         .unwrap_err();
-        assert!(matches!(e, EvalError::InvalidOption(_)));
+        assert!(matches!(e, EvalError::InvalidOption { .. }));
         let e = ate(
             &gt,
             &gt,
@@ -373,6 +373,6 @@ mod tests {
             },
         )
         .unwrap_err();
-        assert!(matches!(e, EvalError::InvalidOption(_)));
+        assert!(matches!(e, EvalError::InvalidOption { .. }));
     }
 }

@@ -9,7 +9,8 @@ pub enum EvalError {
     #[error(
         "only {found} pose pair(s) associated within {t_max_diff_s} s, need at least {needed} \
          (ground truth spans {gt_span}, estimate spans {est_span}{offset_note}); check that both \
-         files use the same clock, or widen --t-max-diff / set --offset"
+         files use the same clock, or widen the association window (t_max_diff_s) or set a time \
+         offset (offset_s)"
     )]
     TooFewPairs {
         /// Pairs found.
@@ -30,8 +31,8 @@ pub enum EvalError {
         "{align} alignment is degenerate: the {pairs} associated estimate positions span only \
          {rank} dimension(s) of the cross-covariance (collinear or coincident), so the rotation \
          about that line is undetermined. evo stops here too ('Degenerate covariance rank, Umeyama \
-         alignment is not possible'). Use --align origin or --align none, or --preset tum, which \
-         aligns anyway and warns"
+         alignment is not possible'). Align by the origin or not at all, or use the TUM preset, \
+         which aligns anyway and warns"
     )]
     DegenerateAlignment {
         /// The requested alignment.
@@ -65,6 +66,46 @@ pub enum EvalError {
         tolerance_hint: String,
     },
     /// An option value outside its domain, or a combination a preset cannot reproduce.
-    #[error("{0}")]
-    InvalidOption(String),
+    #[error("option {option}: {message}")]
+    InvalidOption {
+        /// The field of [`crate::AteOptions`] / [`crate::RpeOptions`] at fault.
+        option: &'static str,
+        /// What is wrong, with the value.
+        message: String,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_name_options_not_command_line_flags() {
+        // The library serves callers without a command line: the CLI adds its flags.
+        let errors = [
+            EvalError::TooFewPairs {
+                found: 1,
+                needed: 3,
+                t_max_diff_s: 0.01,
+                gt_span: "0-1 s".into(),
+                est_span: "5-6 s".into(),
+                offset_note: String::new(),
+            },
+            EvalError::DegenerateAlignment {
+                align: Align::Se3,
+                pairs: 4,
+                rank: 1,
+            },
+            EvalError::NoRelativePairs {
+                delta: 50.0,
+                unit: DeltaUnit::Frames,
+                poses: 4,
+                tolerance_hint: String::new(),
+            },
+        ];
+        for e in errors {
+            let m = e.to_string();
+            assert!(!m.contains("--"), "{m}");
+        }
+    }
 }

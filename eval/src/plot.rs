@@ -127,7 +127,7 @@ fn tick_label(v: f64, step: f64) -> String {
     }
 }
 
-pub use stride_core::colormap::viridis;
+pub use stride_output::colormap::viridis;
 
 struct Frame {
     x: f64,

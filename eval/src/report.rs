@@ -4,7 +4,7 @@
 use crate::plot::escape;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use stride_core::fsutil::write_atomic;
+use stride_output::fs::write_atomic;
 
 /// A piece of a report.
 #[derive(Debug, Clone, PartialEq)]

@@ -96,30 +96,31 @@ pub struct RpeResult {
 
 fn validate(o: &RpeOptions) -> Result<(), EvalError> {
     if !(o.delta.is_finite() && o.delta > 0.0) {
-        return Err(EvalError::InvalidOption(format!(
-            "--delta must be a positive number, got {}",
-            o.delta
-        )));
+        return Err(EvalError::InvalidOption {
+            option: "delta",
+            message: format!("must be a positive number, got {}", o.delta),
+        });
     }
     if o.unit == DeltaUnit::Frames && o.delta.fract() != 0.0 {
-        return Err(EvalError::InvalidOption(format!(
-            "--delta must be a whole number of frames, got {}",
-            o.delta
-        )));
+        return Err(EvalError::InvalidOption {
+            option: "delta",
+            message: format!("must be a whole number of frames, got {}", o.delta),
+        });
     }
     check_association(o.t_max_diff_s, o.offset_s)?;
     if !(o.rel_delta_tol.is_finite() && o.rel_delta_tol >= 0.0) {
-        return Err(EvalError::InvalidOption(format!(
-            "--delta-tol must be a non-negative fraction, got {}",
-            o.rel_delta_tol
-        )));
+        return Err(EvalError::InvalidOption {
+            option: "rel_delta_tol",
+            message: format!("must be a non-negative fraction, got {}", o.rel_delta_tol),
+        });
     }
     if o.preset == Preset::Tum && o.all_pairs {
-        return Err(EvalError::InvalidOption(
-            "--all-pairs cannot reproduce the TUM tool, whose all-pairs mode draws 10 000 random \
-             pairs regardless of delta; use --preset evo --all-pairs"
+        return Err(EvalError::InvalidOption {
+            option: "all_pairs",
+            message: "cannot reproduce the TUM tool, whose all-pairs mode draws 10 000 random \
+                      pairs regardless of delta; use the evo preset for all pairs"
                 .into(),
-        ));
+        });
     }
     Ok(())
 }
@@ -156,7 +157,10 @@ fn finish(
             unit: options.unit,
             poses,
             tolerance_hint: if options.all_pairs {
-                format!(" or a larger --delta-tol (now {})", options.rel_delta_tol)
+                format!(
+                    " or a larger relative tolerance (now {})",
+                    options.rel_delta_tol
+                )
             } else {
                 String::new()
             },
@@ -363,7 +367,7 @@ fn rpe_tum(gt: &Trajectory, est: &Trajectory, o: &RpeOptions) -> Result<RpeResul
         Alignment::identity()
     } else {
         warnings.push(format!(
-            "the TUM RPE tool does not align; --align {} departs from it",
+            "the TUM RPE tool does not align; alignment {} departs from it",
             o.align
         ));
         let pairs = associate(gt, est, Preset::Tum, o.t_max_diff_s, o.offset_s);

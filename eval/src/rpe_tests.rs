@@ -199,7 +199,7 @@ fn invalid_options_and_empty_results_are_errors() {
         },
     ] {
         assert!(
-            matches!(rpe(&t, &t, &bad), Err(EvalError::InvalidOption(_))),
+            matches!(rpe(&t, &t, &bad), Err(EvalError::InvalidOption { .. })),
             "{bad:?}"
         );
     }

@@ -9,14 +9,16 @@ use stride_core::trajectory::Trajectory;
 /// finite `offset_s`.
 pub fn check_association(t_max_diff_s: f64, offset_s: f64) -> Result<(), EvalError> {
     if !(t_max_diff_s.is_finite() && t_max_diff_s >= 0.0) {
-        return Err(EvalError::InvalidOption(format!(
-            "--t-max-diff must be a non-negative number of seconds, got {t_max_diff_s}"
-        )));
+        return Err(EvalError::InvalidOption {
+            option: "t_max_diff_s",
+            message: format!("must be a non-negative number of seconds, got {t_max_diff_s}"),
+        });
     }
     if !offset_s.is_finite() {
-        return Err(EvalError::InvalidOption(format!(
-            "--offset must be finite, got {offset_s}"
-        )));
+        return Err(EvalError::InvalidOption {
+            option: "offset_s",
+            message: format!("must be finite, got {offset_s}"),
+        });
     }
     Ok(())
 }

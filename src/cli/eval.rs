@@ -3,10 +3,10 @@
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use std::path::{Path, PathBuf};
-use stride_core::fsutil::write_atomic;
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_eval::report::Report;
-use stride_eval::{ate, rpe, Align, AteOptions, DeltaUnit, Preset, RpeOptions};
+use stride_eval::{ate, rpe, Align, AteOptions, DeltaUnit, EvalError, Preset, RpeOptions};
+use stride_output::fs::write_atomic;
 
 #[derive(Debug, Subcommand)]
 pub enum EvalCommand {
@@ -185,6 +185,34 @@ fn write_report_json(dir: &Path, json: &serde_json::Value) -> Result<()> {
         .with_context(|| format!("writing {}", p.display()))
 }
 
+/// An eval error for a user of `stride eval`: an invalid option is named by the flag that
+/// sets it (the eval crate names its options' fields).
+fn in_flags(e: EvalError) -> anyhow::Error {
+    let hint = match &e {
+        EvalError::TooFewPairs { .. } => {
+            "--t-max-diff widens the window, --offset shifts the clock"
+        }
+        EvalError::DegenerateAlignment { .. } => "--align origin, --align none or --preset tum",
+        _ => "",
+    };
+    let EvalError::InvalidOption { option, message } = e else {
+        return if hint.is_empty() {
+            e.into()
+        } else {
+            anyhow::anyhow!("{e} ({hint})")
+        };
+    };
+    let flag = match option {
+        "t_max_diff_s" => "--t-max-diff",
+        "offset_s" => "--offset",
+        "delta" => "--delta",
+        "rel_delta_tol" => "--delta-tol",
+        "all_pairs" => "--all-pairs",
+        other => other,
+    };
+    anyhow::anyhow!("{flag}: {message}")
+}
+
 fn run_ate(a: AteArgs) -> Result<()> {
     let c = &a.common;
     let (gt, est) = load(c)?;
@@ -196,7 +224,9 @@ fn run_ate(a: AteArgs) -> Result<()> {
         o.t_max_diff_s = t;
     }
     o.offset_s = c.offset;
-    let r = ate(&gt, &est, &o).context("computing the ATE")?;
+    let r = ate(&gt, &est, &o)
+        .map_err(in_flags)
+        .context("computing the ATE")?;
     emit(
         c,
         r.to_json(),
@@ -227,7 +257,9 @@ fn run_rpe(a: RpeArgs) -> Result<()> {
     }
     o.all_pairs = a.all_pairs;
     o.rel_delta_tol = a.delta_tol;
-    let r = rpe(&gt, &est, &o).context("computing the RPE")?;
+    let r = rpe(&gt, &est, &o)
+        .map_err(in_flags)
+        .context("computing the RPE")?;
     emit(
         c,
         r.to_json(),

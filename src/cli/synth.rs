@@ -5,7 +5,7 @@ use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use stride_datasets::png_io::read_rgb;
 use stride_datasets::synth::motion::{Gait, MotionConfig, PathKind};
-use stride_datasets::synth::{generate, SynthConfig, SynthSummary, TerrainSource};
+use stride_datasets::synth::{generate, SynthConfig, SynthError, SynthSummary, TerrainSource};
 use stride_eval::blur::{correlation, dominant_frequency_hz, laplacian_variance};
 use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
 use stride_eval::report::Report;
@@ -188,10 +188,16 @@ impl SynthArgs {
 /// Generates a sequence with a progress bar; returns its summary.
 pub fn synthesize(config: &SynthConfig, out: &Path, overwrite: bool) -> Result<SynthSummary> {
     let pb = crate::pipeline::progress_bar(config.frames, "rendering", true);
-    let summary = generate(config, out, overwrite, &mut |done, _| {
+    let summary = match generate(config, out, overwrite, &mut |done, _| {
         pb.set_position(done as u64)
-    })
-    .with_context(|| format!("generating the synthetic sequence in {}", out.display()))?;
+    }) {
+        Err(SynthError::NotEmpty(p)) => bail!(
+            "{} exists and is not empty (pass --overwrite to replace it)",
+            p.display()
+        ),
+        other => other
+            .with_context(|| format!("generating the synthetic sequence in {}", out.display()))?,
+    };
     pb.finish_and_clear();
     Ok(summary)
 }

@@ -106,6 +106,9 @@ pub enum SynthError {
     /// A parameter is out of its valid range.
     #[error("invalid synthetic sequence parameter: {0}")]
     Invalid(String),
+    /// The output folder holds files and replacing it was not asked for.
+    #[error("{} exists and is not empty; it is replaced only when overwriting is asked for", .0.display())]
+    NotEmpty(std::path::PathBuf),
     /// Reading the terrain or writing the output failed.
     #[error(transparent)]
     Dataset(#[from] DatasetError),

@@ -9,9 +9,9 @@ use crate::png_io::{encode_depth_u16, encode_rgb};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use stride_core::fsutil::write_atomic;
 use stride_core::image::{Image, RgbImage};
 use stride_core::trajectory::Trajectory;
+use stride_output::fs::write_atomic;
 
 /// What [`generate`] produced.
 #[derive(Debug, Clone)]
@@ -69,13 +69,10 @@ pub fn generate(
             .map(|mut d| d.next().is_some())
             .unwrap_or(true)
     {
-        return Err(SynthError::Dataset(DatasetError::invalid(
-            out,
-            "exists and is not empty (pass --overwrite to replace it)",
-        )));
+        return Err(SynthError::NotEmpty(out.to_path_buf()));
     }
     let synth = Synth::new(config.clone())?;
-    let tmp = stride_core::fsutil::temp_path_for(out);
+    let tmp = stride_output::fs::temp_path_for(out);
     let _ = std::fs::remove_dir_all(&tmp);
     for sub in ["rgb", "depth"] {
         std::fs::create_dir_all(tmp.join(sub)).map_err(|e| DatasetError::io(tmp.join(sub), e))?;
