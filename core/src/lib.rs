@@ -8,20 +8,17 @@
 //! * [`geometry`]: Umeyama's closed-form alignment of two point sets (SE(3) or Sim(3)).
 //! * [`camera`]: the pinhole camera with Brown-Conrady distortion; the camera frame is
 //!   x right, y down, z forward (OpenCV/TUM).
-//! * [`colormap`]: the viridis colour map for plots and previews.
 //! * [`image`] and [`frame`]: plain image buffers and the RGB-D frame (depth in metres).
 //! * [`grid`]: regular x-y grids (elevation maps, ground-truth terrain), z up.
 //! * [`rng`]: seeded and counter-based random numbers (reproducible runs).
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
 //! * [`uncertainty`]: per-point 3x3 covariances of RGB-D measurements (PrimeSense model).
-//! * [`fsutil`]: writing files atomically (temporary file, then rename).
 //!
-//! This crate depends on nalgebra only, so that mapping and evaluation can serve any SLAM.
+//! This crate holds types and models only (no file I/O) and depends on nalgebra, so that
+//! mapping and evaluation can serve any SLAM.
 
 pub mod camera;
-pub mod colormap;
 pub mod frame;
-pub mod fsutil;
 pub mod geometry;
 pub mod grid;
 pub mod image;

@@ -121,8 +121,8 @@ mod tests {
             let vv = v + m.var_v_px2.sqrt() * rng.normal();
             let dd = d + m.sigma_d(d) * rng.normal();
             let p = nalgebra::Vector3::new(
-                (uu - cam.cx) / cam.fx * dd,
-                (vv - cam.cy) / cam.fy * dd,
+                (uu - cam.cx()) / cam.fx() * dd,
+                (vv - cam.cy()) / cam.fy() * dd,
                 dd,
             );
             mean += p;

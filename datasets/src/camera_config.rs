@@ -230,11 +230,11 @@ mod tests {
     #[test]
     fn presets_hold_the_published_values() {
         let fr1 = CameraConfig::preset("fr1").unwrap();
-        assert_eq!(fr1.camera.fx, 517.306408);
-        assert_eq!(fr1.camera.distortion.unwrap().k3, 1.163314);
+        assert_eq!(fr1.camera.fx(), 517.306408);
+        assert_eq!(fr1.camera.distortion().unwrap().k3, 1.163314);
         let fr3 = CameraConfig::resolve("fr3").unwrap();
-        assert_eq!((fr3.camera.cx, fr3.camera.cy), (320.1, 247.6));
-        assert!(fr3.camera.distortion.is_none());
+        assert_eq!((fr3.camera.cx(), fr3.camera.cy()), (320.1, 247.6));
+        assert!(fr3.camera.distortion().is_none());
         assert_eq!(fr3.depth_scale, 5000.0);
         assert!(CameraConfig::preset("fr4").is_none());
     }
@@ -247,9 +247,9 @@ mod tests {
                "depth_scale": 1000, "distortion": [0.1, 0.01, 0, 0], "note": "ignored"}"#,
         );
         let c = CameraConfig::from_file(&json).unwrap();
-        assert_eq!(c.camera.fy, 501.0);
+        assert_eq!(c.camera.fy(), 501.0);
         assert_eq!(c.depth_scale, 1000.0);
-        assert_eq!(c.camera.distortion.unwrap().k3, 0.0);
+        assert_eq!(c.camera.distortion().unwrap().k3, 0.0);
         let toml = write(
             "c.toml",
             "fx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\ndepth_scale = 5000.0\nmodel = \"x\"\n",
@@ -257,7 +257,7 @@ mod tests {
         assert!(CameraConfig::from_file(&toml)
             .unwrap()
             .camera
-            .distortion
+            .distortion()
             .is_none());
         let yaml = write(
             "c.yaml",
@@ -267,7 +267,7 @@ mod tests {
             CameraConfig::from_file(&yaml)
                 .unwrap()
                 .camera
-                .distortion
+                .distortion()
                 .unwrap()
                 .k3,
             0.2

@@ -15,8 +15,8 @@
 use crate::error::DatasetError;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use stride_core::fsutil::write_atomic;
 use stride_core::grid::{Grid, GridGeometry};
+use stride_output::fs::write_atomic;
 
 /// The JSON header of a grid.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -271,7 +271,7 @@ pub fn relief_png(grid: &Grid<f32>, max_side: usize) -> Result<Vec<u8>, String> 
             let dzdy = if dzdy.is_nan() { 0.0 } else { dzdy };
             let n = (dzdx * dzdx + dzdy * dzdy + 1.0).sqrt();
             let shade = ((dzdx * 0.5 - dzdy * 0.5 + 0.707) / n).clamp(0.0, 1.0) * 0.6 + 0.55;
-            let (cr, cg, cb) = stride_core::colormap::viridis((v - f64::from(lo)) / span);
+            let (cr, cg, cb) = stride_output::colormap::viridis((v - f64::from(lo)) / span);
             let f = |c: u8| (f64::from(c) * shade).round().clamp(0.0, 255.0) as u8;
             px.push([f(cr), f(cg), f(cb)]);
         }

@@ -13,10 +13,8 @@
 //! * [`grid_file`]: the grid format (`.npy` float32 layers + a JSON header) shared by the
 //!   synthetic ground truth and the elevation mapper.
 //! * [`synth`]: the synthetic legged-robot RGB-D generator with ground truth.
-//! * [`data_root`]: where the shared real data lives (`STRIDE_DATA` or `../shared/data`).
 
 pub mod camera_config;
-pub mod data_root;
 pub mod error;
 pub mod grid_file;
 pub mod orbslam_settings;

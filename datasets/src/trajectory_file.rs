@@ -28,9 +28,9 @@ use crate::error::DatasetError;
 use crate::text::{data_lines, parse_finite, read_text};
 use std::fmt::Write as _;
 use std::path::Path;
-use stride_core::fsutil::write_atomic;
 use stride_core::pose::{pose_from_translation_quaternion, pose_to_translation_quaternion};
 use stride_core::trajectory::Trajectory;
+use stride_output::fs::write_atomic;
 
 /// Deviation of a quaternion's norm from 1 above which reading warns (it still normalises).
 pub const QUATERNION_NORM_WARN_TOLERANCE: f64 = 1e-3;

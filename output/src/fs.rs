@@ -119,7 +119,7 @@ mod tests {
 
     #[test]
     fn writes_and_replaces_without_leaving_temporaries() {
-        let dir = std::env::temp_dir().join(format!("stride-fsutil-{}", std::process::id()));
+        let dir = std::env::temp_dir().join(format!("stride-output-fs-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let p = dir.join("a.txt");
         write_atomic(&p, b"one").unwrap();

@@ -10,12 +10,12 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use serde_json::{json, Value};
 use std::path::PathBuf;
-use stride_core::fsutil::write_atomic;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::synth::SynthConfig;
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_eval::plot::{render, Chart, Series, PALETTE};
 use stride_eval::report::Report;
+use stride_output::fs::write_atomic;
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {

@@ -5,7 +5,6 @@ use clap::{Args, ValueEnum};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
-use stride_core::fsutil::{write_atomic, StagedDir};
 use stride_core::grid::Grid;
 use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
@@ -22,6 +21,7 @@ use stride_mapping::metrics::{
 use stride_mapping::post::MedianStats;
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers, MappingError};
+use stride_output::fs::{write_atomic, StagedDir};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum MapperArg {

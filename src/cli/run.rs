@@ -8,11 +8,11 @@ use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use stride_backend::{BackendConfig, BackendMode};
-use stride_core::fsutil::{write_atomic, StagedDir};
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::{ate, rpe, Align, AteOptions, AteResult, Preset, RpeOptions, RpeResult};
 use stride_frontend::VoConfig;
+use stride_output::fs::{write_atomic, StagedDir};
 
 #[derive(Debug, Args)]
 pub struct RunArgs {

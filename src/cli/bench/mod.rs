@@ -9,7 +9,7 @@ mod synth;
 
 use anyhow::{bail, Context, Result};
 use clap::Subcommand;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
@@ -50,9 +50,17 @@ pub(crate) fn orbslam3_summary(
     camera: &str,
     runs: usize,
 ) -> Result<serde_json::Value> {
-    let harness = stride_datasets::data_root::shared_data_dir()
-        .map(|d| d.join("../tools/peers/orbslam3_tum.py"))
-        .filter(|p| p.is_file())
+    // The peers live in the shared tree beside the data: `$STRIDE_DATA/../tools/peers`, or
+    // `../shared/tools/peers` from the working directory or from the repository.
+    let shared = std::env::var_os("STRIDE_DATA").map(|d| PathBuf::from(d).join(".."));
+    let harness = shared
+        .into_iter()
+        .chain([
+            PathBuf::from("../shared"),
+            PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared")),
+        ])
+        .map(|d| d.join("tools/peers/orbslam3_tum.py"))
+        .find(|p| p.is_file())
         .context("the ORB-SLAM3 harness ../shared/tools/peers/orbslam3_tum.py was not found")?;
     let out_dir = std::env::temp_dir().join(format!("stride-orbslam3-{}", std::process::id()));
     let out = std::process::Command::new(python)
