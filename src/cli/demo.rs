@@ -79,8 +79,53 @@ fn f(v: &Value, path: &[&str]) -> f64 {
         .unwrap_or(f64::NAN)
 }
 
+/// What the demo's stages produced, for the report.
+struct Stages {
+    config: SynthConfig,
+    synth: stride_datasets::synth::SynthSummary,
+    blur: String,
+    slam: run::RunSummary,
+    slam_world: Trajectory,
+    map_gt: Value,
+    map_slam: Value,
+}
+
+/// The demo, stage by stage: render, SLAM, maps, report.
 pub fn run(a: DemoArgs) -> Result<()> {
     let started = std::time::Instant::now();
+    prepare_out(&a)?;
+    let (config, synth, blur) = render_sequence(&a)?;
+    let (slam, slam_world) = run_slam(&a, &synth.groundtruth)?;
+    let (map_gt, map_slam) = make_maps(&a)?;
+    let st = Stages {
+        config,
+        synth,
+        blur,
+        slam,
+        slam_world,
+        map_gt,
+        map_slam,
+    };
+    let summary = summary_json(&a, &st, started);
+    write_report(&a, &st, &summary, started)?;
+    let s = &summary;
+    crate::outln!(
+        "SLAM: {} of {} frames tracked, ATE {:.2} cm; map MSE ours {:.2e} m² vs baseline {:.2e} m² (SLAM poses: {:.2e} m²), phantoms {} vs {}",
+        st.slam.json["frames_tracked"],
+        a.frames,
+        100.0 * f(s, &["slam", "ate_rmse_m"]),
+        f(s, &["map_groundtruth_poses", "stack", "mse"]),
+        f(s, &["map_groundtruth_poses", "fankhauser", "mse"]),
+        f(s, &["map_slam_poses", "stack", "mse"]),
+        st.map_gt["stack"]["phantoms"]["phantoms"],
+        st.map_gt["fankhauser"]["phantoms"]["phantoms"]
+    )?;
+    crate::outln!("report: {}", a.out.join("report.html").display())?;
+    Ok(())
+}
+
+/// Checks the output folder and removes the subfolders the demo replaces.
+fn prepare_out(a: &DemoArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     for sub in ["sequence", "slam", "map_groundtruth", "map_slam"] {
@@ -89,8 +134,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
             std::fs::remove_dir_all(&p).with_context(|| format!("replacing {}", p.display()))?;
         }
     }
+    Ok(())
+}
 
-    // 1. The sequence.
+/// Stage 1, the sequence: a tripod gait over mixed terrain, and its blur report.
+fn render_sequence(
+    a: &DemoArgs,
+) -> Result<(SynthConfig, stride_datasets::synth::SynthSummary, String)> {
     let config = SynthConfig {
         frames: a.frames,
         seed: a.seed,
@@ -105,10 +155,14 @@ pub fn run(a: DemoArgs) -> Result<()> {
     );
     let synth = synthesize(&config, &a.out.join("sequence"), false)?;
     let blur = blur_report(&synth, config.fps)?;
+    Ok((config, synth, blur))
+}
 
-    // 2. SLAM: the odometry with the back end's bundle adjustment.
+/// Stage 2, SLAM: the odometry with the back end's bundle adjustment; its trajectory
+/// anchored in the ground truth's world frame and written for the mapper.
+fn run_slam(a: &DemoArgs, groundtruth: &Trajectory) -> Result<(run::RunSummary, Trajectory)> {
     tracing::info!("SLAM");
-    let vo = run::execute(&RunArgs {
+    let slam = run::execute(&RunArgs {
         dataset: a.out.join("sequence"),
         camera: None,
         out: a.out.join("slam"),
@@ -119,175 +173,75 @@ pub fn run(a: DemoArgs) -> Result<()> {
         max_frames: None,
         deterministic: true,
     })?;
-    let vo_traj = vo.output.trajectory()?;
-    let vo_world = anchored(&vo_traj, &synth.groundtruth)?;
-    let vo_world_path = a.out.join("slam/trajectory_world.tum");
-    write_tum_trajectory(&vo_world_path, &vo_world)?;
+    let world = anchored(&slam.output.trajectory()?, groundtruth)?;
+    write_tum_trajectory(&a.out.join(SLAM_WORLD), &world)?;
+    Ok((slam, world))
+}
 
-    // 3. Maps: ground-truth poses (ours and the baseline), then the SLAM's poses.
+/// Where the SLAM's trajectory in the world frame is written, inside the output folder.
+const SLAM_WORLD: &str = "slam/trajectory_world.tum";
+
+/// Stage 3, maps: ground-truth poses (ours and the baseline), then the SLAM's poses (ours).
+fn make_maps(a: &DemoArgs) -> Result<(Value, Value)> {
     tracing::info!("elevation maps");
-    let (m_gt, _, _) = map::execute(&map_args(
-        &a,
+    let (gt, _, _) = map::execute(&map_args(
+        a,
         "groundtruth".into(),
         a.out.join("map_groundtruth"),
         MapperArg::Both,
     ))?;
-    let (m_vo, _, _) = map::execute(&map_args(
-        &a,
-        vo_world_path.display().to_string(),
+    let (slam, _, _) = map::execute(&map_args(
+        a,
+        a.out.join(SLAM_WORLD).display().to_string(),
         a.out.join("map_slam"),
         MapperArg::Stack,
     ))?;
+    Ok((gt, slam))
+}
 
-    // 4. The report.
-    let j = &vo.json;
-    let summary = json!({
+/// The demo's report.json: the numbers of every stage.
+fn summary_json(a: &DemoArgs, st: &Stages, started: std::time::Instant) -> Value {
+    let j = &st.slam.json;
+    json!({
         "frames": a.frames,
         "seed": a.seed,
-        "blur": config.blur,
+        "blur": st.config.blur,
         "slam": {
             "frames_tracked": j["frames_tracked"],
             "frames_lost": j["frames_lost"],
-            "ate_rmse_m": vo.ate.as_ref().map(|r| r.trans_m.rmse),
-            "rpe_rmse_m_per_frame": vo.rpe.as_ref().map(|r| r.trans_m.rmse),
-            "rpe_rmse_deg_per_frame": vo.rpe.as_ref().map(|r| r.rot_deg.rmse),
+            "ate_rmse_m": st.slam.ate.as_ref().map(|r| r.trans_m.rmse),
+            "rpe_rmse_m_per_frame": st.slam.rpe.as_ref().map(|r| r.trans_m.rmse),
+            "rpe_rmse_deg_per_frame": st.slam.rpe.as_ref().map(|r| r.rot_deg.rmse),
             "fps": j["fps"],
         },
         "map_groundtruth_poses": {
-            "stack": {"mse": m_gt["stack"]["mse"], "mean_abs_m": m_gt["stack"]["mean_abs"], "p95_abs_m": m_gt["stack"]["p95_abs"], "coverage": m_gt["stack"]["coverage"], "phantoms": m_gt["stack"]["phantoms"]["phantoms"], "update_ms_median": m_gt["stack"]["update_ms"]["median"]},
-            "fankhauser": {"mse": m_gt["fankhauser"]["mse"], "mean_abs_m": m_gt["fankhauser"]["mean_abs"], "p95_abs_m": m_gt["fankhauser"]["p95_abs"], "coverage": m_gt["fankhauser"]["coverage"], "phantoms": m_gt["fankhauser"]["phantoms"]["phantoms"], "update_ms_median": m_gt["fankhauser"]["update_ms"]["median"]},
-            "performance_index": m_gt["performance_index_stack_vs_fankhauser"],
+            "stack": {"mse": st.map_gt["stack"]["mse"], "mean_abs_m": st.map_gt["stack"]["mean_abs"], "p95_abs_m": st.map_gt["stack"]["p95_abs"], "coverage": st.map_gt["stack"]["coverage"], "phantoms": st.map_gt["stack"]["phantoms"]["phantoms"], "update_ms_median": st.map_gt["stack"]["update_ms"]["median"]},
+            "fankhauser": {"mse": st.map_gt["fankhauser"]["mse"], "mean_abs_m": st.map_gt["fankhauser"]["mean_abs"], "p95_abs_m": st.map_gt["fankhauser"]["p95_abs"], "coverage": st.map_gt["fankhauser"]["coverage"], "phantoms": st.map_gt["fankhauser"]["phantoms"]["phantoms"], "update_ms_median": st.map_gt["fankhauser"]["update_ms"]["median"]},
+            "performance_index": st.map_gt["performance_index_stack_vs_fankhauser"],
         },
-        "map_slam_poses": {"stack": {"mse": m_vo["mse"], "mean_abs_m": m_vo["mean_abs"], "p95_abs_m": m_vo["p95_abs"], "coverage": m_vo["coverage"], "phantoms": m_vo["phantoms"]["phantoms"]}},
+        "map_slam_poses": {"stack": {"mse": st.map_slam["mse"], "mean_abs_m": st.map_slam["mean_abs"], "p95_abs_m": st.map_slam["p95_abs"], "coverage": st.map_slam["coverage"], "phantoms": st.map_slam["phantoms"]["phantoms"]}},
         "wall_s": started.elapsed().as_secs_f64(),
-    });
+    })
+}
 
+/// Stage 4, the report: a results table, the trajectory, the terrain and the blur study.
+fn write_report(
+    a: &DemoArgs,
+    st: &Stages,
+    summary: &Value,
+    started: std::time::Instant,
+) -> Result<()> {
     let mut rep = Report::new("stride demo: a walking robot's pose and terrain");
     rep.paragraph(format!(
         "A hexapod walks a tripod gait at {:.2} m/s over the procedural 'mixed' terrain (steps, ramps, rubble, boxes) with a Kinect-like RGB-D camera 0.4 m up, tilted down; {} frames at {} Hz{}, seed {}. Everything below is computed from the rendered images; the ground truth is used only to score (and to anchor the SLAM's first pose, as a robot's IMU would).",
-        config.motion.speed_m_s,
+        st.config.motion.speed_m_s,
         a.frames,
-        config.fps,
-        if config.blur { ", 20 ms exposure with motion blur, rolling shutter" } else { ", no motion blur" },
+        st.config.fps,
+        if st.config.blur { ", 20 ms exposure with motion blur, rolling shutter" } else { ", no motion blur" },
         a.seed
     ));
     rep.heading("Results");
-    let cm = |v: f64| format!("{:.2} cm", 100.0 * v);
-    let mse = |v: f64| format!("{v:.2e} m²");
-    let ms = |v: f64| format!("{v:.2} ms");
-    let s = &summary;
-    rep.table(
-        &["what", "value", "see"],
-        vec![
-            vec![
-                "frames tracked / lost".into(),
-                format!("{} / {}", j["frames_tracked"], j["frames_lost"]),
-                "slam/report.html".into(),
-            ],
-            vec![
-                "SLAM ATE rmse (SE(3) aligned)".into(),
-                cm(f(s, &["slam", "ate_rmse_m"])),
-                "slam/report.html".into(),
-            ],
-            vec![
-                "SLAM RPE rmse per frame".into(),
-                format!(
-                    "{} / {:.3} deg",
-                    cm(f(s, &["slam", "rpe_rmse_m_per_frame"])),
-                    f(s, &["slam", "rpe_rmse_deg_per_frame"])
-                ),
-                "slam/report.html".into(),
-            ],
-            vec![
-                "SLAM speed (decoding excluded)".into(),
-                format!("{:.0} frames/s", f(s, &["slam", "fps"])),
-                "slam/report.html".into(),
-            ],
-            vec![
-                "map MSE, ours, ground-truth poses".into(),
-                mse(f(s, &["map_groundtruth_poses", "stack", "mse"])),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map MSE, Fankhauser baseline, same poses".into(),
-                mse(f(s, &["map_groundtruth_poses", "fankhauser", "mse"])),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map error mean / 95th percentile: ours".into(),
-                format!(
-                    "{} / {}",
-                    cm(f(s, &["map_groundtruth_poses", "stack", "mean_abs_m"])),
-                    cm(f(s, &["map_groundtruth_poses", "stack", "p95_abs_m"]))
-                ),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map error mean / 95th percentile: baseline".into(),
-                format!(
-                    "{} / {}",
-                    cm(f(s, &["map_groundtruth_poses", "fankhauser", "mean_abs_m"])),
-                    cm(f(s, &["map_groundtruth_poses", "fankhauser", "p95_abs_m"]))
-                ),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map coverage of the ground truth: ours / baseline".into(),
-                format!(
-                    "{:.2} / {:.2}",
-                    f(s, &["map_groundtruth_poses", "stack", "coverage"]),
-                    f(s, &["map_groundtruth_poses", "fankhauser", "coverage"])
-                ),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "performance index (ours / baseline, eq. 13)".into(),
-                format!(
-                    "{:.3}",
-                    f(s, &["map_groundtruth_poses", "performance_index"])
-                ),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map MSE, ours, SLAM poses".into(),
-                mse(f(s, &["map_slam_poses", "stack", "mse"])),
-                "map_slam/report.html".into(),
-            ],
-            vec![
-                "map error mean / 95th percentile: ours, SLAM poses".into(),
-                format!(
-                    "{} / {}",
-                    cm(f(s, &["map_slam_poses", "stack", "mean_abs_m"])),
-                    cm(f(s, &["map_slam_poses", "stack", "p95_abs_m"]))
-                ),
-                "map_slam/report.html".into(),
-            ],
-            vec![
-                "phantom cells > 2 cm over flat ground: ours / baseline".into(),
-                format!(
-                    "{} / {}",
-                    m_gt["stack"]["phantoms"]["phantoms"],
-                    m_gt["fankhauser"]["phantoms"]["phantoms"]
-                ),
-                "map_groundtruth/report.html".into(),
-            ],
-            vec![
-                "map update per 640x480 frame, median: ours / baseline".into(),
-                format!(
-                    "{} / {}",
-                    ms(f(
-                        s,
-                        &["map_groundtruth_poses", "stack", "update_ms_median"]
-                    )),
-                    ms(f(
-                        s,
-                        &["map_groundtruth_poses", "fankhauser", "update_ms_median"]
-                    ))
-                ),
-                "stride bench map".into(),
-            ],
-        ],
-    );
+    rep.table(&["what", "value", "see"], results_rows(st, summary));
     rep.paragraph("The MSE is dominated by a few cells at the sides of objects and steps, where a 1 cm cell honestly holds either height; the mean and 95th percentile say more about the rest.");
     rep.paragraph("Map update times here are measured while PNG decoding runs beside the mapper on the same two cores; `stride bench map` times them on frames decoded up front.");
     let top = |t: &Trajectory| t.positions().iter().map(|p| (p.x, p.y)).collect::<Vec<_>>();
@@ -303,8 +257,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
             x_label: "x (m)".into(),
             y_label: "y (m)".into(),
             series: vec![
-                Series::line("ground truth", PALETTE[6], top(&synth.groundtruth)),
-                Series::line("SLAM", PALETTE[1], top(&vo_world)),
+                Series::line("ground truth", PALETTE[6], top(&st.synth.groundtruth)),
+                Series::line("SLAM", PALETTE[1], top(&st.slam_world)),
             ],
             equal_aspect: true,
             ..Chart::default()
@@ -314,8 +268,8 @@ pub fn run(a: DemoArgs) -> Result<()> {
             x_label: "time (s)".into(),
             y_label: "z (m)".into(),
             series: vec![
-                Series::line("ground truth", PALETTE[6], side(&synth.groundtruth)),
-                Series::line("SLAM", PALETTE[1], side(&vo_world)),
+                Series::line("ground truth", PALETTE[6], side(&st.synth.groundtruth)),
+                Series::line("SLAM", PALETTE[1], side(&st.slam_world)),
             ],
             ..Chart::default()
         },
@@ -340,7 +294,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         "Our map with the SLAM's poses: what a robot without ground truth gets.",
     );
     rep.heading("Motion blur");
-    rep.paragraph(blur);
+    rep.paragraph(st.blur.as_str());
     rep.image(
         "sequence/blur.svg",
         "Image sharpness over time against the true image motion.",
@@ -356,17 +310,120 @@ pub fn run(a: DemoArgs) -> Result<()> {
         serde_json::to_string_pretty(&summary)?.as_bytes(),
     )?;
 
-    crate::outln!(
-        "SLAM: {} of {} frames tracked, ATE {:.2} cm; map MSE ours {:.2e} m² vs baseline {:.2e} m² (SLAM poses: {:.2e} m²), phantoms {} vs {}",
-        j["frames_tracked"],
-        a.frames,
-        100.0 * f(s, &["slam", "ate_rmse_m"]),
-        f(s, &["map_groundtruth_poses", "stack", "mse"]),
-        f(s, &["map_groundtruth_poses", "fankhauser", "mse"]),
-        f(s, &["map_slam_poses", "stack", "mse"]),
-        m_gt["stack"]["phantoms"]["phantoms"],
-        m_gt["fankhauser"]["phantoms"]["phantoms"]
-    )?;
-    crate::outln!("report: {}", a.out.join("report.html").display())?;
     Ok(())
+}
+
+/// The rows of the demo report's results table: what, value, where to look.
+fn results_rows(st: &Stages, s: &Value) -> Vec<Vec<String>> {
+    let cm = |path: &[&str]| format!("{:.2} cm", 100.0 * f(s, path));
+    let mse = |path: &[&str]| format!("{:.2e} m²", f(s, path));
+    let ms = |path: &[&str]| format!("{:.2} ms", f(s, path));
+    let pair = |x: String, y: String| format!("{x} / {y}");
+    let (j, gt) = (&st.slam.json, "map_groundtruth_poses");
+    let (slam, map_gt, map_slam) = (
+        "slam/report.html",
+        "map_groundtruth/report.html",
+        "map_slam/report.html",
+    );
+    let rows = [
+        (
+            "frames tracked / lost",
+            pair(
+                j["frames_tracked"].to_string(),
+                j["frames_lost"].to_string(),
+            ),
+            slam,
+        ),
+        (
+            "SLAM ATE rmse (SE(3) aligned)",
+            cm(&["slam", "ate_rmse_m"]),
+            slam,
+        ),
+        (
+            "SLAM RPE rmse per frame",
+            format!(
+                "{} / {:.3} deg",
+                cm(&["slam", "rpe_rmse_m_per_frame"]),
+                f(s, &["slam", "rpe_rmse_deg_per_frame"])
+            ),
+            slam,
+        ),
+        (
+            "SLAM speed (decoding excluded)",
+            format!("{:.0} frames/s", f(s, &["slam", "fps"])),
+            slam,
+        ),
+        (
+            "map MSE, ours, ground-truth poses",
+            mse(&[gt, "stack", "mse"]),
+            map_gt,
+        ),
+        (
+            "map MSE, Fankhauser baseline, same poses",
+            mse(&[gt, "fankhauser", "mse"]),
+            map_gt,
+        ),
+        (
+            "map error mean / 95th percentile: ours",
+            pair(
+                cm(&[gt, "stack", "mean_abs_m"]),
+                cm(&[gt, "stack", "p95_abs_m"]),
+            ),
+            map_gt,
+        ),
+        (
+            "map error mean / 95th percentile: baseline",
+            pair(
+                cm(&[gt, "fankhauser", "mean_abs_m"]),
+                cm(&[gt, "fankhauser", "p95_abs_m"]),
+            ),
+            map_gt,
+        ),
+        (
+            "map coverage of the ground truth: ours / baseline",
+            format!(
+                "{:.2} / {:.2}",
+                f(s, &[gt, "stack", "coverage"]),
+                f(s, &[gt, "fankhauser", "coverage"])
+            ),
+            map_gt,
+        ),
+        (
+            "performance index (ours / baseline, eq. 13)",
+            format!("{:.3}", f(s, &[gt, "performance_index"])),
+            map_gt,
+        ),
+        (
+            "map MSE, ours, SLAM poses",
+            mse(&["map_slam_poses", "stack", "mse"]),
+            map_slam,
+        ),
+        (
+            "map error mean / 95th percentile: ours, SLAM poses",
+            pair(
+                cm(&["map_slam_poses", "stack", "mean_abs_m"]),
+                cm(&["map_slam_poses", "stack", "p95_abs_m"]),
+            ),
+            map_slam,
+        ),
+        (
+            "phantom cells > 2 cm over flat ground: ours / baseline",
+            pair(
+                st.map_gt["stack"]["phantoms"]["phantoms"].to_string(),
+                st.map_gt["fankhauser"]["phantoms"]["phantoms"].to_string(),
+            ),
+            map_gt,
+        ),
+        (
+            "map update per 640x480 frame, median: ours / baseline",
+            pair(
+                ms(&[gt, "stack", "update_ms_median"]),
+                ms(&[gt, "fankhauser", "update_ms_median"]),
+            ),
+            "stride bench map",
+        ),
+    ];
+    rows.into_iter()
+        .map(|(what, value, see)| vec![what.to_string(), value, see.to_string()])
+        .collect()
 }
