@@ -21,6 +21,7 @@
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
 
 mod binned;
+mod checks;
 mod column;
 pub mod error;
 pub mod fankhauser;

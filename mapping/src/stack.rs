@@ -32,6 +32,7 @@
 //! The median fill of small holes ([`crate::post`]) is applied by
 //! [`ElevationMapper::finished`], when [`StackConfig::median_filter`] asks for it.
 
+use crate::checks::{LosTable, SeeThrough, Target};
 use crate::column::{Accs, Cell, Stack};
 use crate::error::{self, MappingError};
 use crate::input::{
@@ -109,18 +110,6 @@ impl Default for StackConfig {
             median_filter: Some(MedianFilter::default()),
         }
     }
-}
-
-/// A line-of-sight target of the visibility check: an updated, established cell.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Target {
-    /// Map-frame position of the cell centre (m).
-    x: f64,
-    y: f64,
-    bin: i64,
-    radial: usize,
-    /// `(h + 3 sigma - z_sensor) / distance` (rise per metre from the sensor).
-    slope: f64,
 }
 
 /// An archived (evicted) column: its exported values.
@@ -255,44 +244,16 @@ impl StackMapper {
         image: Option<(&DepthImage, &PinholeCamera, &nalgebra::Isometry3<f64>)>,
     ) -> usize {
         let targets = targets.unwrap_or(&[]);
-        let (bmin, bmax) = (
-            targets.iter().map(|t| t.bin).min().unwrap_or(0),
-            targets.iter().map(|t| t.bin).max().unwrap_or(-1),
-        );
-        let radial = targets.iter().map(|t| t.radial).max().map_or(0, |r| r + 1);
-        let nb = (bmax - bmin + 1).max(0) as usize;
-        // Lowest slope per (bin, radial index), then the running minimum from far to near.
-        let table = &mut self.los_table;
-        table.clear();
-        table.resize(nb * radial, f32::INFINITY);
-        for t in targets {
-            if let Some(v) = table.get_mut((t.bin - bmin) as usize * radial + t.radial) {
-                *v = v.min(t.slope as f32);
-            }
-        }
-        if radial > 0 {
-            table.par_chunks_mut(radial).for_each(|row| {
-                let mut run = f32::INFINITY;
-                for v in row.iter_mut().rev() {
-                    run = run.min(*v);
-                    *v = run;
-                }
-            });
-        }
+        let los = LosTable::build(&mut self.los_table, targets);
         if targets.is_empty() && image.is_none() {
             return 0;
         }
-        let table = &self.los_table;
         // Only columns around the targets and the sensor can be cut: those beyond every
         // target have no line of sight over them, and the see-through check needs a surface
         // beyond the column (the whole window when there are no targets).
+        let inf = f64::INFINITY;
         let bbox = if targets.is_empty() {
-            (
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-                f64::NEG_INFINITY,
-                f64::INFINITY,
-            )
+            (-inf, inf, -inf, inf)
         } else {
             targets
                 .iter()
@@ -300,22 +261,33 @@ impl StackMapper {
                     (b.0.min(t.x), b.1.max(t.x), b.2.min(t.y), b.3.max(t.y))
                 })
         };
-        let frame_no = self.frame_no;
+        let (frame_no, band_cells, polar) = (self.frame_no, self.band_cells, *polar);
         let locate = self.window.locator();
-        let band_cells = self.band_cells;
-        let polar = *polar;
-        let voxel_h = self.cfg.voxel_height_m as f32;
-        let res = self.cfg.resolution_m;
-        let model = self.cfg.sensor;
+        let (voxel_h, res) = (self.cfg.voxel_height_m as f32, self.cfg.resolution_m);
         let see = image.map(|(depth, camera, map_from_sensor)| {
-            (
-                depth.as_slice(),
-                depth.width() as i64,
-                depth.height() as i64,
-                camera,
-                map_from_sensor.inverse(),
-            )
+            SeeThrough::new(depth, camera, map_from_sensor, self.cfg.sensor, res)
         });
+        let check = |c: &mut Cell, st: &mut Stack, x: f64, y: f64| -> bool {
+            let (bin, r, d) = polar.of(x, y);
+            let mut hit = false;
+            // Line of sight to the targets two radial steps on (at least two cells farther
+            // than this column).
+            if let Some(slope) = los.slope_beyond(bin, r).filter(|_| d >= 2.0 * res) {
+                let line_m = sz + f64::from(slope) * d;
+                if f64::from(c.h) > line_m {
+                    hit |= c.cut_above(st, line_m as f32, frame_no);
+                }
+            }
+            // See-through: only columns in the azimuth range of this frame's targets can be
+            // in view (all of them when there are no targets).
+            let in_view = targets.is_empty() || los.near_bins(bin, 8);
+            if let (Some(see), true) = (&see, in_view && c.mapped()) {
+                if see.sees_past(x, y, f64::from(c.h)) {
+                    hit |= c.cut_above(st, c.h - voxel_h, frame_no);
+                }
+            }
+            hit
+        };
         self.window
             .cells_mut()
             .par_chunks_mut(band_cells)
@@ -328,62 +300,9 @@ impl StackMapper {
                         continue;
                     }
                     let (x, y) = locate(band * band_cells + k);
-                    if !(x >= bbox.0 && x <= bbox.1 && y >= bbox.2 && y <= bbox.3) {
-                        continue;
+                    if x >= bbox.0 && x <= bbox.1 && y >= bbox.2 && y <= bbox.3 {
+                        changed += usize::from(check(c, st, x, y));
                     }
-                    let mut hit = false;
-                    // Line of sight to the targets two radial steps on (at least two cells
-                    // farther than this column).
-                    let (bin, r, d) = polar.of(x, y);
-                    if bin >= bmin && bin <= bmax && d >= 2.0 * res {
-                        if let Some(&slope) = table
-                            .get((bin - bmin) as usize * radial + r + 2)
-                            .filter(|_| r + 2 < radial)
-                        {
-                            let los = sz + f64::from(slope) * d;
-                            if slope.is_finite() && f64::from(c.h) > los {
-                                hit |= c.cut_above(st, los as f32, frame_no);
-                            }
-                        }
-                    }
-                    // See-through: every ray around the column top's projection ends beyond it.
-                    // Only columns in the azimuth range of this frame's targets can be in
-                    // view (all of them when there are no targets).
-                    let in_view = targets.is_empty() || (bin >= bmin - 8 && bin <= bmax + 8);
-                    if let (Some((pixels, w, h, camera, sensor_from_map)), true) =
-                        (&see, in_view && c.mapped())
-                    {
-                        let q = sensor_from_map * nalgebra::Point3::new(x, y, f64::from(c.h));
-                        if q.z >= model.min_depth_m && q.z <= model.max_depth_m {
-                            if let Some(px) = camera.project(&q) {
-                                let (u, v) =
-                                    ((px.x + 0.5).floor() as i64, (px.y + 0.5).floor() as i64);
-                                if u >= 1 && v >= 1 && u < w - 1 && v < h - 1 {
-                                    // `d - 3 sigma_d(d)` grows with d, so the nearest of the nine
-                                    // decides (a missing return counts as not free).
-                                    let mut nearest = f32::INFINITY;
-                                    for dv in -1..=1 {
-                                        let row = (v + dv) * w;
-                                        if let Some(three) = pixels
-                                            .get((row + u - 1) as usize..(row + u + 2) as usize)
-                                        {
-                                            for &d in three {
-                                                nearest =
-                                                    nearest.min(if d > 0.0 { d } else { 0.0 });
-                                            }
-                                        }
-                                    }
-                                    let d = f64::from(nearest);
-                                    let free = d.is_finite()
-                                        && d > q.z + 3.0 * model.model.sigma_d(d) + res;
-                                    if free {
-                                        hit |= c.cut_above(st, c.h - voxel_h, frame_no);
-                                    }
-                                }
-                            }
-                        }
-                    }
-                    changed += usize::from(hit);
                 }
                 changed
             })
