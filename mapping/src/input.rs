@@ -381,11 +381,12 @@ impl Rejections {
 /// The sensor pose as plain numbers for the per-point transform.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Placement {
-    rot: nalgebra::Matrix3<f64>,
-    trans: Vector3<f64>,
+    pub(crate) rot: nalgebra::Matrix3<f64>,
+    pub(crate) trans: Vector3<f64>,
     /// The map's z axis in the sensor frame (third row of the rotation).
-    r3: Vector3<f64>,
-    range: (f64, f64),
+    pub(crate) r3: Vector3<f64>,
+    /// Accepted depth range (m).
+    pub(crate) range: (f64, f64),
 }
 
 impl Placement {
@@ -473,158 +474,6 @@ impl Placement {
                 }
                 _ => Err(Reason::BadVariance),
             }
-        }
-    }
-}
-
-/// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its
-/// 3 x 3 neighbourhood (infinity when there is none), using `col` as scratch.
-fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: &mut Vec<f32>) {
-    let (w, h) = (depth.width() as usize, depth.height() as usize);
-    let px = depth.as_slice();
-    let row = |r: usize| px.get(r * w..(r + 1) * w).unwrap_or(&[]);
-    let nz = |x: f32| if x > 0.0 { x } else { f32::INFINITY };
-    let (up, mid, down) = (
-        row(v.saturating_sub(1)),
-        row(v),
-        row((v + 1).min(h.saturating_sub(1))),
-    );
-    col.clear();
-    col.push(f32::INFINITY);
-    col.extend(
-        up.iter()
-            .zip(mid)
-            .zip(down)
-            .map(|((&a, &b), &c)| nz(a).min(nz(b)).min(nz(c))),
-    );
-    col.push(f32::INFINITY);
-    out.clear();
-    out.extend(col.windows(3).map(|t| match t {
-        [a, b, c] => a.min(*b).min(*c),
-        _ => f32::INFINITY,
-    }));
-}
-
-/// One slice of rows of a depth image and what is needed to turn its pixels into map
-/// points.
-pub(crate) struct DepthSlice<'a, M: ?Sized> {
-    pub(crate) depth: &'a DepthImage,
-    pub(crate) camera: &'a PinholeCamera,
-    pub(crate) rays: Rays<'a>,
-    pub(crate) rows: std::ops::Range<usize>,
-    pub(crate) edge: Option<&'a EdgeFilter>,
-    pub(crate) place: &'a Placement,
-    pub(crate) model: &'a M,
-}
-
-/// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
-/// variance (m²) and whether it is a valid measurement.
-#[derive(Debug, Clone, Copy, Default)]
-struct RowPoint {
-    x: f64,
-    y: f64,
-    z: f64,
-    var: f64,
-    ok: bool,
-}
-
-/// Turns the pixels of a slice of rows into map points (or reasons to drop them), in
-/// pixel order. Each row goes through a branch-free arithmetic pass the compiler can
-/// vectorise, then a pass that hands valid points (or the reason for an invalid one) to
-/// `sink`.
-#[inline]
-pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample, Reason>)>(
-    s: DepthSlice<'_, M>,
-    mut sink: S,
-) {
-    let w = (s.depth.width() as usize).max(1);
-    let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
-    let f_px = s.camera.fx();
-    let pl = s.place;
-    let (lo, hi) = pl.range;
-    let rot = pl.rot;
-    let t = pl.trans;
-    // The edge threshold of `EdgeFilter::threshold_m`, written out so that it vectorises
-    // (no filter: an infinite threshold).
-    let edge_slope = s
-        .edge
-        .map_or(f64::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0));
-    let edge_k = s.edge.map_or(0.0, |e| e.sigmas * std::f64::consts::SQRT_2);
-    let is_edge = |d: f64, near: f32| {
-        let gap = d - f64::from(near);
-        // The cheap bound first: the noise term is only needed near a jump.
-        gap > edge_slope * d && gap > edge_slope * d + edge_k * s.model.depth_sigma_m(d)
-    };
-    let mut rrow = Vec::new();
-    for v in s.rows {
-        let Some(drow) = s.depth.as_slice().get(v * w..(v + 1) * w) else {
-            continue;
-        };
-        s.rays.row(v, w, &mut rrow);
-        if s.edge.is_some() {
-            nearest_neighbour_row(s.depth, v, &mut scratch, &mut nearest);
-        } else {
-            nearest.clear();
-        }
-        nearest.resize(drow.len(), f32::INFINITY);
-        pts.clear();
-        pts.extend(drow.iter().zip(&rrow).zip(&nearest).enumerate().map(
-            |(u, ((&d, &(xn, yn)), &near))| {
-                let d = f64::from(d);
-                let p = nalgebra::Vector3::new(xn * d, yn * d, d);
-                let q = rot * p + t;
-                let var = s.model.pixel_variance(
-                    s.camera,
-                    &DepthPixel {
-                        u: u as f64,
-                        v: v as f64,
-                        xn,
-                        yn,
-                        d_m: d,
-                    },
-                    &pl.r3,
-                );
-                let ok = d >= lo
-                    && d <= hi
-                    && var > 0.0
-                    && var < f64::INFINITY
-                    && q.x.is_finite()
-                    && q.y.is_finite()
-                    && !is_edge(d, near);
-                RowPoint {
-                    x: q.x,
-                    y: q.y,
-                    z: q.z,
-                    var,
-                    ok,
-                }
-            },
-        ));
-        for ((p, &d), &near) in pts.iter().zip(drow).zip(&nearest) {
-            if p.ok {
-                sink(Ok(HeightSample {
-                    x: p.x,
-                    y: p.y,
-                    z: p.z,
-                    var: p.var,
-                }));
-                continue;
-            }
-            let d = f64::from(d);
-            sink(Err(if d == 0.0 {
-                Reason::NoReturn
-            } else if !d.is_finite() {
-                Reason::NonFinite
-            } else if d < lo || d > hi {
-                Reason::OutOfRange
-            } else if !(p.var.is_finite() && p.var > 0.0) {
-                Reason::BadVariance
-            } else if !(p.x.is_finite() && p.y.is_finite()) {
-                Reason::NonFinite
-            } else {
-                debug_assert!(is_edge(d, near));
-                Reason::DepthEdge
-            }));
         }
     }
 }

@@ -25,6 +25,7 @@ mod checks;
 mod column;
 pub mod error;
 pub mod fankhauser;
+mod fuse;
 pub mod input;
 pub mod metrics;
 mod polar;

@@ -35,6 +35,7 @@
 use crate::checks::{LosTable, SeeThrough, Target};
 use crate::column::{Accs, Cell, Stack};
 use crate::error::{self, MappingError};
+use crate::fuse::{Band, BandUpdate, Fusion};
 use crate::input::{
     prepare_binned, Binned, Cloud, EdgeFilter, PrimeSenseHeight, RayCache, SensorFrame,
 };
@@ -224,6 +225,30 @@ impl StackMapper {
         }
     }
 
+    /// The visibility check's polar frame for this sensor pose: azimuth bins of
+    /// `visibility_bin_m` at the far range (a pseudo-angle unit is about a radian ahead of
+    /// the sensor) and radial steps of two cells.
+    fn polar_frame(&self, frame: &SensorFrame<'_>) -> Polar {
+        let cfg = &self.cfg;
+        let s = frame.map_from_sensor.translation.vector;
+        let fwd = frame.map_from_sensor.rotation * nalgebra::Vector3::z();
+        let heading = nalgebra::Vector2::new(fwd.x, fwd.y);
+        let heading = if heading.norm() > 1e-9 {
+            heading.normalize()
+        } else {
+            nalgebra::Vector2::x()
+        };
+        let far_m = cfg.sensor.max_depth_m.max(cfg.resolution_m);
+        Polar {
+            sx: s.x,
+            sy: s.y,
+            hx: heading.x,
+            hy: heading.y,
+            bins_per_unit: far_m / cfg.visibility_bin_m.max(1e-4),
+            inv_step: 0.5 / cfg.resolution_m,
+        }
+    }
+
     /// The checks after the update, in one pass over the window's mapped columns:
     ///
     /// * the visibility check of section 3.2 (when `targets` is given; see the module
@@ -335,33 +360,17 @@ impl ElevationMapper for StackMapper {
             &mut self.binned,
         );
         let prepare_s = start.elapsed().as_secs_f64();
-        let voxel_h = cfg.voxel_height_m as f32;
-        let inv_voxel_h = 1.0 / voxel_h;
-        let frame_no = self.frame_no;
-        let binned = &self.binned;
-        let locate = self.window.locator();
-        let s = frame.map_from_sensor.translation.vector;
-        let (sx, sy, sz) = (s.x, s.y, s.z);
-        let fwd = frame.map_from_sensor.rotation * nalgebra::Vector3::z();
-        let heading = nalgebra::Vector2::new(fwd.x, fwd.y);
-        let heading = if heading.norm() > 1e-9 {
-            heading.normalize()
-        } else {
-            nalgebra::Vector2::x()
+        let polar = self.polar_frame(frame);
+        let sz = frame.map_from_sensor.translation.z;
+        let fusion = Fusion {
+            binned: &self.binned,
+            cfg: &cfg,
+            frame_no: self.frame_no,
+            locate: self.window.locator(),
+            polar,
+            sensor_z_m: sz,
         };
-        // Bins of `visibility_bin_m` at the far range; a pseudo-angle unit is about a radian
-        // ahead of the sensor.
-        let far_m = cfg.sensor.max_depth_m.max(cfg.resolution_m);
-        let polar = Polar {
-            sx,
-            sy,
-            hx: heading.x,
-            hy: heading.y,
-            bins_per_unit: far_m / cfg.visibility_bin_m.max(1e-4),
-            inv_step: 0.5 / cfg.resolution_m,
-        };
-        let min_d = 2.0 * cfg.resolution_m;
-        let results: Vec<(usize, usize, Vec<Target>)> = self
+        let bands: Vec<BandUpdate> = self
             .window
             .cells_mut()
             .par_chunks_mut(band_cells)
@@ -369,82 +378,20 @@ impl ElevationMapper for StackMapper {
             .zip(self.accs.par_chunks_mut(band_cells))
             .zip(self.pending.par_iter_mut())
             .enumerate()
-            .map(|(b, (((cells, stacks), accs), pending))| {
-                let lo = b * band_cells;
-                let (mut used, mut overflow) = (0usize, 0usize);
-                let mut touched: Vec<u32> = Vec::new();
-                for p in binned.band(b) {
-                    let k = (p.cell as usize).wrapping_sub(lo);
-                    let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
-                        continue;
-                    };
-                    if cell.n_acc == 0 {
-                        touched.push(p.cell);
-                    }
-                    let idx_f = (p.z_m * inv_voxel_h).floor();
-                    let idx = idx_f as i32;
-                    if cell.accumulate(acc, idx, p.z_m - idx_f * voxel_h, 1.0 / p.var_m2) {
-                        used += 1;
-                    } else {
-                        overflow += 1;
-                    }
-                }
-                let mut targets = Vec::new();
-                for &ci in &touched {
-                    let k = (ci as usize).wrapping_sub(lo);
-                    let (Some(c), Some(st), Some(acc)) =
-                        (cells.get_mut(k), stacks.get_mut(k), accs.get(k))
-                    else {
-                        continue;
-                    };
-                    c.apply(st, acc, frame_no, voxel_h, &cfg);
-                    if !c.established && !c.pending {
-                        c.pending = true;
-                        pending.push(ci);
-                    }
-                    if cfg.visibility_check && c.mapped() && c.last_frame == frame_no {
-                        let (x, y) = locate(ci as usize);
-                        let (bin, radial, d) = polar.of(x, y);
-                        if d >= min_d {
-                            let top = f64::from(c.h) + 3.0 * f64::from(c.var).max(0.0).sqrt();
-                            targets.push(Target {
-                                x,
-                                y,
-                                bin,
-                                radial,
-                                slope: (top - sz) / d,
-                            });
-                        }
-                    }
-                }
-                // Vitality decays in columns not updated now, until they are established.
-                pending.retain(|&ci| {
-                    let Some(c) = cells.get_mut((ci as usize).wrapping_sub(lo)) else {
-                        return false;
-                    };
-                    if !c.pending || c.established {
-                        c.pending = false;
-                        return false;
-                    }
-                    if c.last_frame != frame_no {
-                        c.vitality = c.vitality.saturating_sub(cfg.vitality_decrease);
-                        if c.vitality == 0 {
-                            *c = Cell::default();
-                            return false;
-                        }
-                    }
-                    true
-                });
-                (used, overflow, targets)
+            .map(|(index, (((cells, stacks), accs), pending))| {
+                fusion.band(Band {
+                    index,
+                    first: index * band_cells,
+                    cells,
+                    stacks,
+                    accs,
+                    pending,
+                })
             })
             .collect();
-        let (mut used, mut overflow) = (0, 0);
-        let mut targets = Vec::new();
-        for (u, o, t) in results {
-            used += u;
-            overflow += o;
-            targets.extend(t);
-        }
+        let used = bands.iter().map(|b| b.used).sum();
+        let overflow = bands.iter().map(|b| b.overflow).sum();
+        let targets: Vec<Target> = bands.into_iter().flat_map(|b| b.targets).collect();
         let image = match (cfg.see_through_check, frame.cloud()) {
             (true, Cloud::Depth { depth_m, camera }) => {
                 Some((depth_m, camera, &frame.map_from_sensor))

@@ -1,0 +1,162 @@
+//! One frame's fusion into the stack mapper's columns, band by band: accumulate the binned
+//! measurements per voxel, apply them to the columns' Kalman filters (eq. 1) and cell filter
+//! (eq. 2), collect the visibility check's targets, and decay the vitality of columns not
+//! yet established (section 3.1).
+
+use crate::binned::Binned;
+use crate::checks::Target;
+use crate::column::{Accs, Cell, Stack};
+use crate::polar::Polar;
+use crate::stack::StackConfig;
+
+/// What one band's fusion did.
+pub(crate) struct BandUpdate {
+    /// Measurements fused.
+    pub(crate) used: usize,
+    /// Measurements dropped because their column had too many distinct voxels this frame.
+    pub(crate) overflow: usize,
+    /// Updated, established cells for the visibility check.
+    pub(crate) targets: Vec<Target>,
+}
+
+/// The frame's constants of the fusion.
+pub(crate) struct Fusion<'a, L> {
+    pub(crate) binned: &'a Binned,
+    pub(crate) cfg: &'a StackConfig,
+    pub(crate) frame_no: u32,
+    /// Storage index to map-frame cell centre (m).
+    pub(crate) locate: L,
+    pub(crate) polar: Polar,
+    /// Sensor height in the map frame (m).
+    pub(crate) sensor_z_m: f64,
+}
+
+/// One band of the window's storage: its first storage index and its slices.
+pub(crate) struct Band<'b> {
+    pub(crate) index: usize,
+    pub(crate) first: usize,
+    pub(crate) cells: &'b mut [Cell],
+    pub(crate) stacks: &'b mut [Stack],
+    pub(crate) accs: &'b mut [Accs],
+    /// Columns of this band not yet established, whose vitality may decay.
+    pub(crate) pending: &'b mut Vec<u32>,
+}
+
+impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
+    /// Fuses this frame's measurements into one band.
+    pub(crate) fn band(&self, band: Band<'_>) -> BandUpdate {
+        let Band {
+            index,
+            first,
+            cells,
+            stacks,
+            accs,
+            pending,
+        } = band;
+        let (used, overflow, touched) = self.accumulate(index, first, cells, accs);
+        let targets = self.apply(first, &touched, cells, stacks, accs, pending);
+        self.decay(first, cells, pending);
+        BandUpdate {
+            used,
+            overflow,
+            targets,
+        }
+    }
+
+    /// Accumulates the band's measurements per (column, voxel); returns the counts of used
+    /// and overflowing measurements and the columns touched.
+    fn accumulate(
+        &self,
+        index: usize,
+        first: usize,
+        cells: &mut [Cell],
+        accs: &mut [Accs],
+    ) -> (usize, usize, Vec<u32>) {
+        let voxel_h = self.cfg.voxel_height_m as f32;
+        let inv_voxel_h = 1.0 / voxel_h;
+        let (mut used, mut overflow, mut touched) = (0, 0, Vec::new());
+        for p in self.binned.band(index) {
+            let k = (p.cell as usize).wrapping_sub(first);
+            let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
+                continue;
+            };
+            if cell.n_acc == 0 {
+                touched.push(p.cell);
+            }
+            let idx_f = (p.z_m * inv_voxel_h).floor();
+            if cell.accumulate(acc, idx_f as i32, p.z_m - idx_f * voxel_h, 1.0 / p.var_m2) {
+                used += 1;
+            } else {
+                overflow += 1;
+            }
+        }
+        (used, overflow, touched)
+    }
+
+    /// Applies the accumulated voxels to the touched columns; new columns join `pending`.
+    /// Returns the visibility targets: established cells updated now, at least two cells
+    /// from the sensor.
+    fn apply(
+        &self,
+        first: usize,
+        touched: &[u32],
+        cells: &mut [Cell],
+        stacks: &mut [Stack],
+        accs: &[Accs],
+        pending: &mut Vec<u32>,
+    ) -> Vec<Target> {
+        let cfg = self.cfg;
+        let min_d = 2.0 * cfg.resolution_m;
+        let mut targets = Vec::new();
+        for &ci in touched {
+            let k = (ci as usize).wrapping_sub(first);
+            let (Some(c), Some(st), Some(acc)) = (cells.get_mut(k), stacks.get_mut(k), accs.get(k))
+            else {
+                continue;
+            };
+            c.apply(st, acc, self.frame_no, cfg.voxel_height_m as f32, cfg);
+            if !c.established && !c.pending {
+                c.pending = true;
+                pending.push(ci);
+            }
+            if !(cfg.visibility_check && c.mapped() && c.last_frame == self.frame_no) {
+                continue;
+            }
+            let (x, y) = (self.locate)(ci as usize);
+            let (bin, radial, d) = self.polar.of(x, y);
+            if d >= min_d {
+                let top = f64::from(c.h) + 3.0 * f64::from(c.var).max(0.0).sqrt();
+                targets.push(Target {
+                    x,
+                    y,
+                    bin,
+                    radial,
+                    slope: (top - self.sensor_z_m) / d,
+                });
+            }
+        }
+        targets
+    }
+
+    /// Vitality decays in pending columns not updated now, until they are established; a
+    /// column whose vitality reaches 0 is forgotten.
+    fn decay(&self, first: usize, cells: &mut [Cell], pending: &mut Vec<u32>) {
+        pending.retain(|&ci| {
+            let Some(c) = cells.get_mut((ci as usize).wrapping_sub(first)) else {
+                return false;
+            };
+            if !c.pending || c.established {
+                c.pending = false;
+                return false;
+            }
+            if c.last_frame != self.frame_no {
+                c.vitality = c.vitality.saturating_sub(self.cfg.vitality_decrease);
+                if c.vitality == 0 {
+                    *c = Cell::default();
+                    return false;
+                }
+            }
+            true
+        });
+    }
+}
