@@ -271,13 +271,9 @@ pub fn map_sequence(
     Ok((runs, counts))
 }
 
-fn median_p95(v: &[f64]) -> (f64, f64) {
-    crate::pipeline::median_p95(v.iter().copied())
-}
-
 /// The report object of one mapper.
 pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
-    let (med, p95) = median_p95(&r.update_s);
+    let (med, p95) = crate::pipeline::median_p95(r.update_s.iter().copied());
     let total_s: f64 = r.update_s.iter().sum();
     let mut m = Map::new();
     m.insert("mapper".into(), json!(r.name));

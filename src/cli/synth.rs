@@ -206,7 +206,7 @@ pub fn run(a: SynthArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out)?;
     let config = a.config()?;
     let summary = synthesize(&config, &a.out, a.overwrite)?;
-    let median = median(&summary.render_s);
+    let median = crate::pipeline::median_p95(summary.render_s.iter().copied()).0;
     crate::outln!(
         "{} frames in {:.1} s: rendering {:.1} ms/frame median ({:.1} frames/s{}), gait cycle {:.2} Hz, steps {:.2} Hz",
         summary.frames.len(),
@@ -278,7 +278,7 @@ pub fn blur_report(summary: &SynthSummary, fps: f64) -> Result<String> {
     let svg = render(&charts, 2, 560.0, 360.0);
     let text = format!(
         "sharpness median {:.1}; dominant frequency {} (gait steps at {:.2} Hz); correlation with image motion {}",
-        median(&sharp),
+        crate::pipeline::median_p95(sharp.iter().copied()).0,
         dom.map_or("-".into(), |f| format!("{f:.2} Hz")),
         summary.step_hz,
         corr.map_or("-".into(), |c| format!("{c:.2}"))
@@ -299,9 +299,4 @@ pub fn blur_report(summary: &SynthSummary, fps: f64) -> Result<String> {
     rep.write(dir)
         .with_context(|| format!("writing the report into {}", dir.display()))?;
     Ok(text)
-}
-
-/// The median (of the two middle values, their mean), as every report computes it.
-fn median(v: &[f64]) -> f64 {
-    crate::pipeline::median_p95(v.iter().copied()).0
 }
