@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use stride_backend::{BackendConfig, BackendMode};
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
-use stride_eval::{ate, rpe, Align, AteOptions, AteResult, Preset, RpeOptions, RpeResult};
+use stride_eval::{ate, rpe, AteResult, Preset, RpeOptions, RpeResult};
 use stride_frontend::VoConfig;
 use stride_output::fs::{write_atomic, StagedDir};
 
@@ -205,10 +205,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     };
     write_frames_csv(&dir.join("frames.csv"), &output)?;
 
-    let ate_opts = AteOptions {
-        align: Align::Se3,
-        ..AteOptions::for_preset(Preset::Evo)
-    };
+    let ate_opts = crate::pipeline::slam_ate_options();
     let (ate_r, rpe_r) = match &seq.groundtruth {
         Some(gt) => {
             let at = ate(gt, &traj, &ate_opts);

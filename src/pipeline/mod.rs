@@ -18,7 +18,7 @@ mod stats;
 
 pub use coupling::Schedule;
 pub use output::{BackendSummary, FrameRecord, FrameStatus, RunOutput};
-pub use stats::median_p95;
+pub use stats::{median_p95, slam_ate_options};
 
 use anyhow::{Context, Result};
 use coupling::{finish_backend, Coupling};

@@ -20,3 +20,12 @@ pub fn median_p95(values: impl Iterator<Item = f64>) -> (f64, f64) {
     };
     (median, at(0.95))
 }
+
+/// The ATE every SLAM report states: evo's preset (`evo_ape tum GT EST -a`), SE(3)
+/// alignment.
+pub fn slam_ate_options() -> stride_eval::AteOptions {
+    stride_eval::AteOptions {
+        align: stride_eval::Align::Se3,
+        ..stride_eval::AteOptions::for_preset(stride_eval::Preset::Evo)
+    }
+}

@@ -13,7 +13,7 @@ use std::time::Instant;
 use stride_backend::BackendConfig;
 use stride_core::frame::RgbdFrame;
 use stride_datasets::tum::{AssociationOptions, CameraSource, TumSequence};
-use stride_eval::{ate, Align, AteOptions, Preset};
+use stride_eval::ate;
 use stride_frontend::VoConfig;
 
 #[derive(Debug, Args)]
@@ -69,11 +69,9 @@ fn run_once(
     let traj = out.trajectory()?;
     let ate_m = match &seq.groundtruth {
         Some(gt) => {
-            let opts = AteOptions {
-                align: Align::Se3,
-                ..AteOptions::for_preset(Preset::Evo)
-            };
-            ate(gt, &traj, &opts)?.trans_m.rmse
+            ate(gt, &traj, &crate::pipeline::slam_ate_options())?
+                .trans_m
+                .rmse
         }
         None => f64::NAN,
     };
