@@ -21,6 +21,7 @@ fn small_camera() -> CameraConfig {
     CameraConfig {
         camera: PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240).unwrap(),
         depth_scale: 5000.0,
+        rolling_shutter_s: 0.02,
     }
 }
 
@@ -233,6 +234,7 @@ fn output_loads_unchanged_in_the_readers_and_is_deterministic() {
         camera: CameraConfig {
             camera: PinholeCamera::new(129.3, 129.1, 79.3, 59.8, 160, 120).unwrap(),
             depth_scale: 5000.0,
+            rolling_shutter_s: 0.02,
         },
         frames: 6,
         ..SynthConfig::default()

@@ -3,8 +3,10 @@
 //! A camera file is JSON, TOML or YAML (chosen by extension: `.json`, `.toml`, `.yaml` or
 //! `.yml`) with the keys `fx, fy, cx, cy` (pixels), `width, height` (pixels), `depth_scale`
 //! (raw depth units per metre: 5000 for TUM's 16-bit PNGs) and optionally
-//! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0). Unknown keys
-//! are ignored, so a file can carry notes or extra calibration.
+//! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0) and
+//! `rolling_shutter_s` (the colour camera's readout time, top row to bottom row, in seconds;
+//! 0 or absent for a global shutter). Unknown keys are ignored, so a file can carry notes or
+//! extra calibration.
 //!
 //! A `.yaml`/`.yml` file in ORB-SLAM2 or ORB-SLAM3 settings format (`%YAML:1.0`,
 //! `Camera.fx` or `Camera1.fx`, `DepthMapFactor`) is read too; see
@@ -22,6 +24,10 @@ pub struct CameraConfig {
     pub camera: PinholeCamera,
     /// Raw depth units per metre in the depth PNGs (TUM: 5000, i.e. 0.2 mm per unit).
     pub depth_scale: f64,
+    /// Rolling-shutter readout time of the colour camera, top row to bottom row (s), the
+    /// frame's timestamp being the middle row's time; 0 for a global shutter (and for every
+    /// preset: the TUM benchmark does not publish it).
+    pub rolling_shutter_s: f64,
 }
 
 /// TUM's depth scale: 16-bit depth PNGs hold 5000 units per metre.
@@ -39,6 +45,12 @@ struct CameraFile {
     depth_scale: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     distortion: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    rolling_shutter_s: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// Names accepted by [`CameraConfig::preset`].
@@ -69,6 +81,7 @@ impl CameraConfig {
         Some(Self {
             camera,
             depth_scale: TUM_DEPTH_SCALE,
+            rolling_shutter_s: 0.0,
         })
     }
 
@@ -138,6 +151,7 @@ impl CameraConfig {
             height,
             depth_scale: c.depth_scale,
             distortion,
+            rolling_shutter_s: 0.0,
         }
         .into_config()
         .map_err(|message| DatasetError::invalid(path, message))
@@ -155,6 +169,7 @@ impl CameraConfig {
             height: c.height(),
             depth_scale: self.depth_scale,
             distortion: c.distortion().map(|d| d.to_array().to_vec()),
+            rolling_shutter_s: self.rolling_shutter_s,
         };
         // Serialising plain numbers cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -208,9 +223,16 @@ impl CameraFile {
                 self.depth_scale
             ));
         }
+        if !(self.rolling_shutter_s.is_finite() && (0.0..=0.1).contains(&self.rolling_shutter_s)) {
+            return Err(format!(
+                "rolling_shutter_s = {} is invalid: must be a readout time from 0 to 0.1 s",
+                self.rolling_shutter_s
+            ));
+        }
         Ok(CameraConfig {
             camera,
             depth_scale: self.depth_scale,
+            rolling_shutter_s: self.rolling_shutter_s,
         })
     }
 }
@@ -275,6 +297,32 @@ mod tests {
         // Round trip through the JSON writer.
         let back = write("back.json", &c.to_json());
         assert_eq!(CameraConfig::from_file(&back).unwrap(), c);
+    }
+
+    #[test]
+    fn the_rolling_shutter_readout_is_read_written_and_checked() {
+        let text = |rs: &str| {
+            format!(
+                r#"{{"fx": 500, "fy": 500, "cx": 320, "cy": 240, "width": 640, "height": 480,
+                    "depth_scale": 5000{rs}}}"#
+            )
+        };
+        let path = Path::new("c.json");
+        let global = CameraConfig::from_text(&text(""), path).unwrap();
+        assert_eq!(global.rolling_shutter_s, 0.0);
+        assert!(!global.to_json().contains("rolling_shutter_s"));
+        let rolling = CameraConfig::from_text(&text(r#", "rolling_shutter_s": 0.03"#), path);
+        let rolling = rolling.unwrap();
+        assert_eq!(rolling.rolling_shutter_s, 0.03);
+        assert_eq!(
+            CameraConfig::from_text(&rolling.to_json(), path).unwrap(),
+            rolling
+        );
+        let err = CameraConfig::from_text(&text(r#", "rolling_shutter_s": -1"#), path);
+        assert!(err
+            .unwrap_err()
+            .to_string()
+            .contains("rolling_shutter_s = -1"));
     }
 
     #[test]

@@ -98,6 +98,11 @@ pub struct VoConfig {
     pub max_step_rotation_deg: f64,
     /// Compute ORB descriptors of keyframe keypoints (for map matching by a back end).
     pub orb_descriptors: bool,
+    /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
+    /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
+    /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
+    /// shutter.
+    pub rolling_shutter_s: f64,
     /// Seed of RANSAC's sampling.
     pub seed: u64,
 }
@@ -145,6 +150,7 @@ impl Default for VoConfig {
             max_step_translation_m: 0.5,
             max_step_rotation_deg: 45.0,
             orb_descriptors: true,
+            rolling_shutter_s: 0.0,
             seed: 1,
         }
     }

@@ -90,7 +90,13 @@ impl VisualOdometry {
         let existing: Vec<Point2f> = tracks.iter().map(|t| t.px).collect();
         let corners = Detector::detect(&mut self.detector, &pyr.gray, &existing, &self.config)?;
         for c in corners {
-            let m = measure(&frame.depth_m, &self.camera, c.px.x, c.px.y, &self.config);
+            let m = measure(
+                &frame.depth_m,
+                &self.camera,
+                (c.px.x, c.px.y),
+                &self.shutter,
+                &self.config,
+            );
             let point = m.map(|m| TrackPoint {
                 world: Measurement {
                     p: world_from_cur * m.p,

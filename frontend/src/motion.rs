@@ -91,7 +91,12 @@ fn chi2(c: &Correspondence, t: &Isometry3<f64>, model_noise_m: f64) -> Option<f6
     Some((r.transpose() * inv * r)[(0, 0)])
 }
 
-fn is_inlier(c: &Correspondence, t: &Isometry3<f64>, test: InlierTest, model_noise_m: f64) -> bool {
+pub(crate) fn is_inlier(
+    c: &Correspondence,
+    t: &Isometry3<f64>,
+    test: InlierTest,
+    model_noise_m: f64,
+) -> bool {
     match test {
         InlierTest::Mahalanobis { chi2: bound } => {
             chi2(c, t, model_noise_m).is_some_and(|d| d < bound)

@@ -1,7 +1,7 @@
 //! 3-D points from keypoints and depth, with their covariance.
 
 use crate::config::VoConfig;
-use nalgebra::{Matrix3, Point2, Point3};
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, UnitQuaternion, Vector3};
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 
@@ -14,20 +14,94 @@ pub struct Measurement {
     pub cov: Matrix3<f64>,
 }
 
+/// The camera's motion while a rolling shutter reads out the image, to bring a keypoint
+/// seen in row `v` back to the frame's time. The frame's timestamp is taken as the time of
+/// the middle row; row `v` is read `(v - mid_row) * row_s` seconds later. The default is a
+/// global shutter (no correction).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ShutterMotion {
+    /// Seconds per image row: the readout time over `rows - 1` (0 for a global shutter).
+    pub row_s: f64,
+    /// The row exposed at the frame's timestamp (px): the middle row.
+    pub mid_row: f64,
+    /// Angular velocity of the camera in its own frame (rad/s).
+    pub omega_rad_s: Vector3<f64>,
+    /// Linear velocity of the camera in its own frame (m/s).
+    pub v_m_s: Vector3<f64>,
+}
+
+impl ShutterMotion {
+    /// The motion for a camera with `rows` image rows read out in `readout_s` (s), moving by
+    /// `prev_from_cur` over the last `dt_s` seconds (constant velocity: the camera keeps
+    /// moving so during this frame's readout). A global shutter, a non-positive `dt_s` or a
+    /// non-finite motion give no correction.
+    pub fn new(readout_s: f64, rows: u32, prev_from_cur: &Isometry3<f64>, dt_s: f64) -> Self {
+        let finite = prev_from_cur
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite())
+            && prev_from_cur.rotation.coords.iter().all(|v| v.is_finite());
+        if !(readout_s > 0.0 && dt_s > 0.0 && rows > 1 && finite) {
+            return Self::default();
+        }
+        Self {
+            row_s: readout_s / f64::from(rows - 1),
+            mid_row: f64::from(rows - 1) / 2.0,
+            omega_rad_s: prev_from_cur.rotation.scaled_axis() / dt_s,
+            v_m_s: prev_from_cur.translation.vector / dt_s,
+        }
+    }
+
+    /// `p_camera` (m), measured in image row `v_px`, expressed in the camera frame at the
+    /// frame's time: `cam(t) <- cam(t + s)` with `s` the row's delay, which under constant
+    /// velocity is the rotation by `omega s` followed by the translation `v s`.
+    pub fn to_frame_time(&self, p_camera: Point3<f64>, v_px: f64) -> Point3<f64> {
+        let s = (v_px - self.mid_row) * self.row_s;
+        if s == 0.0 {
+            return p_camera;
+        }
+        UnitQuaternion::from_scaled_axis(self.omega_rad_s * s) * p_camera + self.v_m_s * s
+    }
+}
+
 /// Back-projects the keypoint at `(u, v)` (px, distorted image coordinates) with the depth
 /// image. Rejected (`None`) when the depth is missing or outside the range, or when the 3x3
 /// neighbourhood crosses a depth edge (a pixel without depth or differing by more than
 /// `depth_edge_rel` of the depth): there the depth belongs to either surface. Depth is
 /// interpolated bilinearly between the four pixels around `(u, v)`.
+///
+/// With a rolling shutter (`shutter`), the colour keypoint was seen after (or before) the
+/// frame's time while the depth image is taken at the frame's time (as a global-shutter
+/// depth sensor gives it): the keypoint's ray is brought to the frame's time, and the depth
+/// is read where that ray meets the depth image.
 pub fn measure(
     depth: &DepthImage,
     camera: &PinholeCamera,
-    u: f32,
-    v: f32,
+    (u, v): (f32, f32),
+    shutter: &ShutterMotion,
     config: &VoConfig,
 ) -> Option<Measurement> {
-    let (w, h) = (depth.width() as i64, depth.height() as i64);
-    let (cx, cy) = (u.round() as i64, v.round() as i64);
+    let seen = Point2::new(f64::from(u), f64::from(v));
+    let mut pixel = seen;
+    let mut z = depth_at(depth, &pixel, config)?;
+    if shutter.row_s > 0.0 {
+        let p_now = shutter.to_frame_time(camera.unproject(&seen, z), seen.y);
+        pixel = camera.project(&p_now)?;
+        z = depth_at(depth, &pixel, config)?;
+    }
+    let p = camera.unproject(&pixel, z);
+    let ideal = camera.undistort_pixel(&pixel);
+    let cov = config.uncertainty.covariance(camera, ideal.x, ideal.y, z);
+    Some(Measurement { p, cov })
+}
+
+/// The depth (m) at a sub-pixel position: bilinear between the four pixels around it, once
+/// the 3 x 3 neighbourhood of the nearest pixel is free of holes and depth edges and its
+/// depth is within range (see [`measure`]).
+fn depth_at(depth: &DepthImage, pixel: &Point2<f64>, config: &VoConfig) -> Option<f64> {
+    let (w, h) = (i64::from(depth.width()), i64::from(depth.height()));
+    let (cx, cy) = (pixel.x.round() as i64, pixel.y.round() as i64);
     if cx < 1 || cy < 1 || cx >= w - 1 || cy >= h - 1 {
         return None;
     }
@@ -44,18 +118,15 @@ pub fn measure(
             }
         }
     }
-    // Bilinear depth between the four pixels around (u, v), all validated above.
-    let (fx, fy) = (f64::from(u).floor(), f64::from(v).floor());
-    let (ax, ay) = (f64::from(u) - fx, f64::from(v) - fy);
+    // Bilinear depth between the four pixels around the position, all validated above.
+    let (fx, fy) = (pixel.x.floor(), pixel.y.floor());
+    let (ax, ay) = (pixel.x - fx, pixel.y - fy);
     let (x0, y0) = (fx as u32, fy as u32);
     let d = |x: u32, y: u32| depth.get(x, y).map(f64::from);
-    let z = (d(x0, y0)? * (1.0 - ax) + d(x0 + 1, y0)? * ax) * (1.0 - ay)
-        + (d(x0, y0 + 1)? * (1.0 - ax) + d(x0 + 1, y0 + 1)? * ax) * ay;
-    let pixel = Point2::new(f64::from(u), f64::from(v));
-    let p = camera.unproject(&pixel, z);
-    let ideal = camera.undistort_pixel(&pixel);
-    let cov = config.uncertainty.covariance(camera, ideal.x, ideal.y, z);
-    Some(Measurement { p, cov })
+    Some(
+        (d(x0, y0)? * (1.0 - ax) + d(x0 + 1, y0)? * ax) * (1.0 - ay)
+            + (d(x0, y0 + 1)? * (1.0 - ax) + d(x0 + 1, y0 + 1)? * ax) * ay,
+    )
 }
 
 #[cfg(test)]
@@ -67,17 +138,61 @@ mod tests {
         let cam = PinholeCamera::new(500.0, 500.0, 10.0, 10.0, 20, 20).unwrap();
         let cfg = VoConfig::default();
         let mut depth = DepthImage::filled(20, 20, 2.0);
-        let m = measure(&depth, &cam, 10.0, 10.0, &cfg).unwrap();
+        let m = measure(&depth, &cam, (10.0, 10.0), &ShutterMotion::default(), &cfg).unwrap();
         assert!((m.p.z - 2.0).abs() < 1e-12 && m.p.x.abs() < 1e-12);
         assert!(
             m.cov[(2, 2)] > m.cov[(0, 0)],
             "depth is the least certain axis"
         );
         *depth.get_mut(11, 10).unwrap() = 2.5; // an edge next to the keypoint
-        assert!(measure(&depth, &cam, 10.0, 10.0, &cfg).is_none());
+        assert!(measure(&depth, &cam, (10.0, 10.0), &ShutterMotion::default(), &cfg).is_none());
         *depth.get_mut(11, 10).unwrap() = 0.0; // a hole
-        assert!(measure(&depth, &cam, 10.0, 10.0, &cfg).is_none());
-        assert!(measure(&DepthImage::filled(20, 20, 9.0), &cam, 10.0, 10.0, &cfg).is_none());
-        assert!(measure(&DepthImage::filled(20, 20, 2.0), &cam, 0.2, 10.0, &cfg).is_none());
+        assert!(measure(&depth, &cam, (10.0, 10.0), &ShutterMotion::default(), &cfg).is_none());
+        assert!(measure(
+            &DepthImage::filled(20, 20, 9.0),
+            &cam,
+            (10.0, 10.0),
+            &ShutterMotion::default(),
+            &cfg
+        )
+        .is_none());
+        assert!(measure(
+            &DepthImage::filled(20, 20, 2.0),
+            &cam,
+            (0.2, 10.0),
+            &ShutterMotion::default(),
+            &cfg
+        )
+        .is_none());
+    }
+
+    #[test]
+    fn rolling_shutter_points_come_back_to_the_frame_time() {
+        // A camera turning at 1 rad/s about y and moving at 0.3 m/s along x; 480 rows read
+        // out in 30 ms. A point seen in the last row was measured 15 ms after the frame time.
+        let (omega, vel) = (Vector3::new(0.0, 1.0, 0.0), Vector3::new(0.3, 0.0, 0.0));
+        let dt = 1.0 / 30.0;
+        let prev_from_cur = Isometry3::from_parts(
+            (vel * dt).into(),
+            UnitQuaternion::from_scaled_axis(omega * dt),
+        );
+        let shutter = ShutterMotion::new(0.03, 480, &prev_from_cur, dt);
+        let world_from_cam = |t: f64| {
+            Isometry3::from_parts(
+                (vel * t).into(),
+                UnitQuaternion::from_scaled_axis(omega * t),
+            )
+        };
+        let x_world = Point3::new(0.4, 0.3, 2.0);
+        let s = (479.0 - 239.5) * 0.03 / 479.0;
+        let seen = world_from_cam(s).inverse() * x_world;
+        let truth = world_from_cam(0.0).inverse() * x_world;
+        let fixed = shutter.to_frame_time(seen, 479.0);
+        assert!((seen - truth).norm() > 0.02, "the readout moves the point");
+        assert!((fixed - truth).norm() < 1e-3, "{}", (fixed - truth).norm());
+        // The middle row and a global shutter are left as they are.
+        assert_eq!(shutter.to_frame_time(seen, 239.5), seen);
+        let global = ShutterMotion::new(0.0, 480, &prev_from_cur, dt);
+        assert_eq!(global.to_frame_time(seen, 479.0), seen);
     }
 }

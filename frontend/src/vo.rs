@@ -26,8 +26,10 @@ use crate::error::FrontendError;
 use crate::features::Detector;
 use crate::keyframe::Track;
 use crate::klt::{track, Pyramid};
-use crate::motion::{is_finite, polish, ransac, Correspondence, MotionEstimate, MotionParams};
-use crate::points::{measure, Measurement};
+use crate::motion::{
+    is_finite, is_inlier, polish, ransac, Correspondence, MotionEstimate, MotionParams,
+};
+use crate::points::{measure, Measurement, ShutterMotion};
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
 use opencv::core::Point2f;
@@ -67,6 +69,8 @@ pub struct VisualOdometry {
     pub(crate) kf_count: u64,
     pub(crate) next_id: u64,
     rng: SplitMix64,
+    /// The camera's motion during this frame's readout (rolling shutter).
+    pub(crate) shutter: ShutterMotion,
 }
 
 /// Scales a motion by `ratio` (translation linearly, rotation along its axis).
@@ -84,10 +88,11 @@ impl VisualOdometry {
             || config.min_inliers < 3
             || config.klt_window < 5
             || config.klt_levels < 0
+            || !(0.0..=0.1).contains(&config.rolling_shutter_s)
         {
             return Err(FrontendError::Config(format!(
-                "target_features {} (>= 20), min_inliers {} (>= 3), klt_window {} (>= 5), klt_levels {} (>= 0)",
-                config.target_features, config.min_inliers, config.klt_window, config.klt_levels
+                "target_features {} (>= 20), min_inliers {} (>= 3), klt_window {} (>= 5), klt_levels {} (>= 0), rolling_shutter_s {} (0 to 0.1 s)",
+                config.target_features, config.min_inliers, config.klt_window, config.klt_levels, config.rolling_shutter_s
             )));
         }
         Ok(Self {
@@ -106,6 +111,7 @@ impl VisualOdometry {
             kf_pyramids: Vec::new(),
             kf_count: 0,
             next_id: 0,
+            shutter: ShutterMotion::default(),
         })
     }
 
@@ -193,6 +199,10 @@ impl VisualOdometry {
 
         // 1. Predict and track.
         let prev_from_pred = self.predicted_prev_from_cur(frame.t_s);
+        let rows = self.camera.height();
+        let readout_s = self.config.rolling_shutter_s;
+        self.shutter =
+            ShutterMotion::new(readout_s, rows, &prev_from_pred, frame.t_s - self.prev_t);
         let world_from_pred = self.world_from_prev * prev_from_pred;
         let pred_from_world = world_from_pred.inverse();
         let from: Vec<Point2f> = self.tracks.iter().map(|t| t.px).collect();
@@ -302,6 +312,12 @@ impl VisualOdometry {
         let (tracks, measured): (Vec<Track>, Vec<Option<Measurement>>) = alive.into_iter().unzip();
         self.tracks = tracks;
         if need_kf {
+            // New points are measured with this frame's estimated motion.
+            if status == TrackingStatus::Tracked {
+                let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
+                let dt = frame.t_s - self.prev_t;
+                self.shutter = ShutterMotion::new(readout_s, rows, &prev_from_cur, dt);
+            }
             let odometry = OdometryLink {
                 previous_id: self.kf_count.saturating_sub(1),
                 previous_from_this: kf_from_cur,
@@ -372,10 +388,47 @@ impl VisualOdometry {
         if let Some(max_corr) = realign {
             moved = self.realign(moved, pyr, max_corr)?;
         }
-        let alive: Vec<(Track, Option<Measurement>)> = moved
+        let Attempt {
+            alive,
+            pairs,
+            corrs,
+            ..
+        } = self.measure_tracks(frame, moved, &self.shutter);
+        timing.track_s += t0.elapsed().as_secs_f64();
+        let cfg = &self.config;
+        let t_r = Instant::now();
+        let params = MotionParams::from_config(cfg);
+        let hypothesis = ransac(&corrs, &params, &mut self.rng);
+        timing.ransac_s += t_r.elapsed().as_secs_f64();
+        let t_f = Instant::now();
+        let est = hypothesis.and_then(|(pose, inliers, iterations)| {
+            let e = polish(&corrs, pose, inliers, cfg.refine_iterations, &params)?;
+            Some(MotionEstimate { iterations, ..e })
+        });
+        let attempt = Attempt {
+            alive,
+            pairs,
+            corrs,
+            estimate: est,
+        };
+        let attempt = self.remeasure_rolling(frame, attempt, &params);
+        timing.refine_s += t_f.elapsed().as_secs_f64();
+        Ok(attempt)
+    }
+
+    /// Measures tracks in 3-D with `shutter` and pairs those with a world point: an attempt
+    /// without an estimate yet.
+    fn measure_tracks(
+        &self,
+        frame: &RgbdFrame,
+        tracks: Vec<Track>,
+        shutter: &ShutterMotion,
+    ) -> Attempt {
+        let depth = &frame.depth_m;
+        let alive: Vec<(Track, Option<Measurement>)> = tracks
             .into_iter()
             .map(|t| {
-                let m = measure(&frame.depth_m, &self.camera, t.px.x, t.px.y, &self.config);
+                let m = measure(depth, &self.camera, (t.px.x, t.px.y), shutter, &self.config);
                 (t, m)
             })
             .collect();
@@ -392,25 +445,57 @@ impl VisualOdometry {
                 ))
             })
             .collect();
-        let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
-        timing.track_s += t0.elapsed().as_secs_f64();
-        let cfg = &self.config;
-        let t_r = Instant::now();
-        let params = MotionParams::from_config(cfg);
-        let hypothesis = ransac(&corrs, &params, &mut self.rng);
-        timing.ransac_s += t_r.elapsed().as_secs_f64();
-        let t_f = Instant::now();
-        let est = hypothesis.and_then(|(pose, inliers, iterations)| {
-            let e = polish(&corrs, pose, inliers, cfg.refine_iterations, &params)?;
-            Some(MotionEstimate { iterations, ..e })
-        });
-        timing.refine_s += t_f.elapsed().as_secs_f64();
-        Ok(Attempt {
+        let corrs = pairs.iter().map(|(_, c)| *c).collect();
+        Attempt {
             alive,
             pairs,
             corrs,
-            estimate: est,
-        })
+            estimate: None,
+        }
+    }
+
+    /// With a rolling shutter, the tracks were measured with the predicted motion, which
+    /// lags a walking robot's shake. Once the frame's motion is estimated, they are measured
+    /// again with it and the pose is polished on them (no new RANSAC); the first estimate
+    /// stays when the second fails.
+    fn remeasure_rolling(
+        &mut self,
+        frame: &RgbdFrame,
+        first: Attempt,
+        params: &MotionParams,
+    ) -> Attempt {
+        let dt = frame.t_s - self.prev_t;
+        let readout = self.config.rolling_shutter_s;
+        let Some(e) = first
+            .estimate
+            .as_ref()
+            .filter(|_| readout > 0.0 && dt > 0.0)
+        else {
+            return first;
+        };
+        let prev_from_cur = self.world_from_prev.inverse() * e.ref_from_cur;
+        let shutter = ShutterMotion::new(readout, self.camera.height(), &prev_from_cur, dt);
+        let tracks = first.alive.iter().map(|(t, _)| t.clone()).collect();
+        let again = self.measure_tracks(frame, tracks, &shutter);
+        let flags = again
+            .corrs
+            .iter()
+            .map(|c| is_inlier(c, &e.ref_from_cur, params.test, params.model_noise_m))
+            .collect();
+        let refine = self.config.refine_iterations;
+        match polish(&again.corrs, e.ref_from_cur, flags, refine, params) {
+            Some(second) => {
+                self.shutter = shutter;
+                Attempt {
+                    estimate: Some(MotionEstimate {
+                        iterations: e.iterations,
+                        ..second
+                    }),
+                    ..again
+                }
+            }
+            None => first,
+        }
     }
 
     /// Re-aligns tracks with their keyframe appearance (see [`crate::klt::realign`]), one

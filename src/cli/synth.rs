@@ -3,6 +3,7 @@
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
+use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::png_io::read_rgb;
 use stride_datasets::synth::motion::{Gait, MotionConfig, PathKind};
 use stride_datasets::synth::{generate, SynthConfig, SynthError, SynthSummary, TerrainSource};
@@ -176,7 +177,10 @@ impl SynthArgs {
             seed: self.seed,
             blur: !self.no_blur,
             exposure_s: self.exposure_ms / 1000.0,
-            rolling_shutter_s: self.rolling_shutter_ms / 1000.0,
+            camera: CameraConfig {
+                rolling_shutter_s: self.rolling_shutter_ms / 1000.0,
+                ..defaults.camera
+            },
             depth_noise,
             ..defaults
         };

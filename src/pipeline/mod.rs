@@ -27,8 +27,8 @@ use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
 use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
-use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
+use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::stream::StreamError;
 use stride_datasets::tum::TumSequence;
 use stride_frontend::{StageTimes, TrackingStatus, VisualOdometry, VoConfig};
@@ -45,12 +45,18 @@ pub struct Slam {
 }
 
 impl Slam {
-    /// The odometry for `camera`, and the back end beside it when `backend` is given.
+    /// The odometry for `camera` (its rolling-shutter readout time replaces the one in
+    /// `config`), and the back end beside it when `backend` is given.
     pub fn new(
-        camera: PinholeCamera,
+        camera: &CameraConfig,
         config: VoConfig,
         backend: Option<(BackendConfig, Schedule)>,
     ) -> Result<Self> {
+        let config = VoConfig {
+            rolling_shutter_s: camera.rolling_shutter_s,
+            ..config
+        };
+        let camera = camera.camera;
         let vo = VisualOdometry::new(camera, config).context("creating the visual odometry")?;
         let coupling = match backend {
             Some((config, schedule)) => Some(Coupling {
@@ -193,7 +199,7 @@ pub fn run_slam(
     max_frames: Option<usize>,
     progress: bool,
 ) -> Result<RunOutput> {
-    let mut slam = Slam::new(seq.camera.camera, config, backend)?;
+    let mut slam = Slam::new(&seq.camera, config, backend)?;
     let stream = seq.stream(max_frames, 4);
     let pb = progress_bar(stream.len(), "tracking", progress);
     for item in stream {

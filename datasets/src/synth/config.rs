@@ -56,9 +56,6 @@ pub struct SynthConfig {
     pub start_time_s: f64,
     /// Number of objects (boxes) placed around the path.
     pub objects: usize,
-    /// Rolling-shutter readout time of the colour camera (s): top to bottom row. 0 for a
-    /// global shutter.
-    pub rolling_shutter_s: f64,
     /// Relative amplitude of the frame-to-frame exposure (gain) variation of an
     /// auto-exposing camera.
     pub exposure_flicker: f64,
@@ -66,16 +63,20 @@ pub struct SynthConfig {
 
 impl Default for SynthConfig {
     /// Procedural `mixed` terrain, tripod gait at 0.1 m/s, straight, 150 frames at 30 Hz,
-    /// 20 ms exposure with blur, fr1-like intrinsics without distortion.
+    /// 20 ms exposure with blur, fr1-like intrinsics without distortion, a 20 ms
+    /// rolling-shutter readout.
     fn default() -> Self {
         // fr1's intrinsics without its distortion; the fallback is never taken (fr1 is a
         // built-in preset) but keeps this infallible.
         let camera = CameraConfig::preset("fr1").unwrap_or(CameraConfig {
             camera: PinholeCamera::KINECT_DEFAULT,
             depth_scale: 5000.0,
+            rolling_shutter_s: 0.0,
         });
+        // A 20 ms rolling-shutter readout, as on PrimeSense/Kinect colour cameras.
         let camera = CameraConfig {
             camera: camera.camera.without_distortion(),
+            rolling_shutter_s: 0.02,
             ..camera
         };
         Self {
@@ -94,7 +95,6 @@ impl Default for SynthConfig {
             read_noise_dn: 1.5,
             start_time_s: 1_700_000_000.0,
             objects: 14,
-            rolling_shutter_s: 0.02,
             exposure_flicker: 0.03,
         }
     }
@@ -200,10 +200,12 @@ impl SynthConfig {
                 }
             }
         }
-        if !(self.rolling_shutter_s.is_finite() && (0.0..=0.1).contains(&self.rolling_shutter_s)) {
+        if !(self.camera.rolling_shutter_s.is_finite()
+            && (0.0..=0.1).contains(&self.camera.rolling_shutter_s))
+        {
             return bad(format!(
                 "rolling shutter readout {} s: must be between 0 and 0.1",
-                self.rolling_shutter_s
+                self.camera.rolling_shutter_s
             ));
         }
         if !(self.exposure_flicker.is_finite() && (0.0..=0.5).contains(&self.exposure_flicker)) {

@@ -196,7 +196,7 @@ impl Synth {
         // Rolling shutter: row r of a sub-frame centred at tc is exposed at
         // tc - readout / 2 + readout * r / (rows - 1). Depth stays global-shutter, so during
         // motion colour and depth disagree slightly, as on a real sensor.
-        let rs = cfg.rolling_shutter_s;
+        let rs = cfg.camera.rolling_shutter_s;
         let rows = self.camera.height().max(2) as usize;
         let row_poses = |tc: f64| -> Vec<Isometry3<f64>> {
             if rs <= 0.0 {

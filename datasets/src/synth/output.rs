@@ -178,7 +178,7 @@ fn generate_into(
         &dir.join("camera.json"),
         CameraConfig {
             camera: *synth.camera(),
-            depth_scale: cfg.camera.depth_scale,
+            ..cfg.camera
         }
         .to_json()
         .as_bytes(),
@@ -222,7 +222,7 @@ fn generate_into(
         "objects": cfg.objects,
         "depth_noise": cfg.depth_noise,
         "read_noise_dn": cfg.read_noise_dn,
-        "rolling_shutter_s": cfg.rolling_shutter_s,
+        "rolling_shutter_s": cfg.camera.rolling_shutter_s,
         "exposure_flicker": cfg.exposure_flicker,
         "gait_cycle_hz": synth.motion().cycle_hz(),
         "gait_step_hz": synth.motion().step_hz(),

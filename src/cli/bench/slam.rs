@@ -59,7 +59,7 @@ fn run_once(
     vo: VoConfig,
     backend: Option<(BackendConfig, Schedule)>,
 ) -> Result<RunFigures> {
-    let mut slam = Slam::new(seq.camera.camera, vo, backend)?;
+    let mut slam = Slam::new(&seq.camera, vo, backend)?;
     let t0 = Instant::now();
     for (f, decode_s) in frames {
         slam.process(f, *decode_s)?;
