@@ -187,3 +187,63 @@ fn a_killed_run_leaves_the_previous_or_the_complete_new_output() {
         "the last run was never killed and must have published"
     );
 }
+
+#[test]
+fn teddy_poses_are_in_a_gravity_aligned_world_that_stride_map_takes_directly() {
+    // The world frame comes from the floor in the first frames and the keyframes; the map
+    // built from the run's own trajectory then has a level floor (measured 0.84 degrees;
+    // the floor fit over the map's cells is what a user sees). With a mounting given, the
+    // world comes from it instead.
+    let Some(seq) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let run = slam(&seq, &tmp.path().join("run"), &[]);
+    let world = &run["world_frame"];
+    assert_eq!(world["source"], "floor", "{world}");
+    assert_eq!(world["gravity_aligned"], true);
+    let height = num(world, "first_camera_height_m");
+    assert!((1.0..2.0).contains(&height), "{world}");
+    let poses = tmp.path().join("run/trajectory.tum");
+    let map = common::run_report(
+        "map",
+        &seq,
+        &tmp.path().join("map"),
+        &["--poses", poses.to_str().unwrap()],
+    );
+    let floor = &map["floor"];
+    assert!(num(floor, "tilt_deg") < 1.0, "{floor}");
+    assert!(num(floor, "fraction") > 0.9, "{floor}");
+    let mounted = slam(
+        &seq,
+        &tmp.path().join("mounted"),
+        &[
+            "--camera-pitch-deg",
+            "20",
+            "--camera-height-m",
+            "1.4",
+            "--max-frames",
+            "20",
+        ],
+    );
+    let world = &mounted["world_frame"];
+    assert_eq!(world["source"], "mounting", "{world}");
+    assert!((num(world, "first_camera_height_m") - 1.4).abs() < 1e-9);
+    assert!((num(world, "first_camera_pitch_deg") - 20.0).abs() < 1e-9);
+    let out = common::run(&[
+        "run",
+        "--dataset",
+        seq.to_str().unwrap(),
+        "--out",
+        tmp.path().join("bad").to_str().unwrap(),
+        "--camera-pitch-deg",
+        "120",
+        "--camera-height-m",
+        "1",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("--camera-pitch-deg 120"),
+        "{err}"
+    );
+}

@@ -6,6 +6,7 @@
 //!   frame `b`), e.g. `world_from_camera`; metres and radians throughout.
 //! * [`trajectory`]: time-stamped poses (seconds), sorted by time, with interpolation.
 //! * [`geometry`]: Umeyama's closed-form alignment of two point sets (SE(3) or Sim(3)).
+//! * [`plane`]: least-squares and RANSAC planes (the floor gives the direction of gravity).
 //! * [`camera`]: the pinhole camera with Brown-Conrady distortion; the camera frame is
 //!   x right, y down, z forward (OpenCV/TUM).
 //! * [`image`] and [`frame`]: plain image buffers and the RGB-D frame (depth in metres).
@@ -22,6 +23,7 @@ pub mod frame;
 pub mod geometry;
 pub mod grid;
 pub mod image;
+pub mod plane;
 pub mod pose;
 pub mod rng;
 pub mod time;

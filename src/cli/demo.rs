@@ -172,6 +172,8 @@ fn run_slam(a: &DemoArgs, groundtruth: &Trajectory) -> Result<(run::RunSummary, 
         seed: a.seed,
         max_frames: None,
         deterministic: true,
+        camera_pitch_deg: None,
+        camera_height_m: None,
     })?;
     let world = anchored(&slam.output.trajectory()?, groundtruth)?;
     write_tum_trajectory(&a.out.join(SLAM_WORLD), &world)?;

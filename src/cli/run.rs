@@ -1,6 +1,7 @@
 //! `stride run`: the SLAM pipeline on a sequence: visual odometry, and beside it the back end
 //! (feature map and bundle adjustment, or a pose graph).
 
+use crate::pipeline::world::{WorldPlan, WorldSource};
 use crate::pipeline::{median_p95, run_slam, FrameStatus, RunOutput, Schedule};
 use anyhow::{Context, Result};
 use clap::Args;
@@ -50,6 +51,18 @@ pub struct RunArgs {
     /// thread, which does not change results). Conflicts with --free-running.
     #[arg(long, conflicts_with = "free_running")]
     pub deterministic: bool,
+    /// The camera's downward pitch (degrees) on the robot, with --camera-height-m: sets the
+    /// gravity-aligned world frame instead of the floor seen in the first frames.
+    #[arg(
+        long,
+        value_name = "DEG",
+        requires = "camera_height_m",
+        allow_negative_numbers = true
+    )]
+    pub camera_pitch_deg: Option<f64>,
+    /// The camera's height above the ground (m), with --camera-pitch-deg.
+    #[arg(long, value_name = "M", requires = "camera_pitch_deg")]
+    pub camera_height_m: Option<f64>,
 }
 
 /// The back end to run.
@@ -79,6 +92,26 @@ impl BackendArg {
 pub const SYNC_LAG_FRAMES: usize = 3;
 
 impl RunArgs {
+    /// How the run finds its gravity-aligned world frame: the given mounting, else the
+    /// floor.
+    pub fn world_plan(&self) -> Result<WorldPlan> {
+        match (self.camera_pitch_deg, self.camera_height_m) {
+            (Some(pitch_deg), Some(height_m)) => {
+                if !((-90.0..=90.0).contains(&pitch_deg) && (0.0..=10.0).contains(&height_m)) {
+                    anyhow::bail!(
+                        "--camera-pitch-deg {pitch_deg} must be within [-90, 90] and \
+                         --camera-height-m {height_m} within [0, 10]"
+                    );
+                }
+                Ok(WorldPlan::Mounting {
+                    pitch_deg,
+                    height_m,
+                })
+            }
+            _ => Ok(WorldPlan::Floor),
+        }
+    }
+
     /// The back end's configuration and schedule, `None` for the odometry alone.
     pub fn backend(&self) -> Option<(BackendConfig, Schedule)> {
         if self.vo_only {
@@ -170,7 +203,14 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         seed: a.seed,
         ..base
     };
-    let output = run_slam(&seq, config, a.backend(), a.max_frames, true)?;
+    let output = run_slam(
+        &seq,
+        config,
+        a.backend(),
+        a.world_plan()?,
+        a.max_frames,
+        true,
+    )?;
     if output
         .frames
         .iter()
@@ -331,6 +371,22 @@ fn report_json(
     );
     m.insert("timing_ms".into(), Value::Object(timing));
     m.insert("backend".into(), json!(a.backend_name()));
+    let (roll_deg, pitch_deg, height_m) = out.world.first_camera_attitude();
+    m.insert(
+        "world_frame".into(),
+        json!({
+            "source": match out.world.source {
+                WorldSource::Floor { .. } => "floor",
+                WorldSource::Mounting => "mounting",
+                WorldSource::FirstCamera => "first camera",
+            },
+            "gravity_aligned": out.world.source != WorldSource::FirstCamera,
+            "description": out.world.describe(),
+            "first_camera_height_m": height_m,
+            "first_camera_pitch_deg": pitch_deg,
+            "first_camera_roll_deg": roll_deg,
+        }),
+    );
     if let Some(b) = &out.backend {
         let (med, p95) = median_p95(b.keyframes.iter().map(|k| k.time_s * 1e3));
         m.insert(
@@ -377,10 +433,6 @@ fn report_json(
     m.insert("seed".into(), json!(a.seed));
     m.insert("dataset".into(), json!(a.dataset.display().to_string()));
     m.insert("camera".into(), json!(seq.camera_source.to_string()));
-    m.insert(
-        "world_frame".into(),
-        json!("the first frame's camera frame (x right, y down, z forward)"),
-    );
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());
     }

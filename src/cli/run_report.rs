@@ -17,17 +17,17 @@ fn backend_title(j: &Value) -> &'static str {
     }
 }
 
-/// The map's points and the trajectory from above (x and z of the first camera's frame).
+/// The map's points and the trajectory from above (world x and y).
 fn map_chart(out: &RunOutput, b: &BackendSummary) -> Chart {
     Chart {
         title: "Map from above".into(),
         x_label: "x (m)".into(),
-        y_label: "z (m)".into(),
+        y_label: "y (m)".into(),
         series: vec![
             Series::line(
                 "map points",
                 PALETTE[5],
-                b.points_world.iter().map(|p| (p.x, p.z)).collect(),
+                b.points_world.iter().map(|p| (p.x, p.y)).collect(),
             )
             .with_style(Style::Markers),
             Series::line(
@@ -35,7 +35,7 @@ fn map_chart(out: &RunOutput, b: &BackendSummary) -> Chart {
                 PALETTE[1],
                 out.final_poses()
                     .iter()
-                    .map(|p| (p.translation.x, p.translation.z))
+                    .map(|p| (p.translation.x, p.translation.y))
                     .collect(),
             ),
         ],
@@ -54,10 +54,11 @@ pub fn write_html(
 ) -> Result<()> {
     let mut rep = Report::new(format!("stride run: {}", backend_title(j)));
     rep.paragraph(format!(
-        "Dataset {}; {} frames; seed {}.",
+        "Dataset {}; {} frames; seed {}. World frame: {}.",
         a.dataset.display(),
         out.frames.len(),
-        a.seed
+        a.seed,
+        out.world.describe()
     ));
     let g = |k: &str| j.get(k).cloned().unwrap_or(Value::Null).to_string();
     rep.table(
@@ -111,7 +112,7 @@ pub fn write_html(
         rep.figure(
             "map",
             render(&[map_chart(out, b)], 1, 640.0, 480.0),
-            "The final map's points and the trajectory, seen from above the first camera (its x-z plane; y points down).",
+            "The final map's points and the trajectory, seen from above (the world's x-y plane, z up).",
         );
     }
     let stages = ["decode", "detect", "track", "ransac", "refine", "total"];

@@ -11,10 +11,15 @@
 //!
 //! At the end the back end runs its full optimization, and every frame's final pose comes
 //! from its keyframes' final poses ([`RunOutput::final_poses`]).
+//!
+//! The odometry and the back end work in the frame of the first camera; the outputs are
+//! in the gravity-aligned world ([`world`]), found from the floor in the first frames (or
+//! a given mounting).
 
 mod coupling;
 mod output;
 mod stats;
+pub mod world;
 
 pub use coupling::Schedule;
 pub use output::{BackendSummary, FrameRecord, FrameStatus, RunOutput};
@@ -27,16 +32,25 @@ use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
 use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
+use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
+use stride_core::plane::Plane;
 use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::stream::StreamError;
 use stride_datasets::tum::TumSequence;
 use stride_frontend::{StageTimes, TrackingStatus, VisualOdometry, VoConfig};
+use world::{floor_in_camera, WorldFrame, WorldPlan};
 
 /// The SLAM, fed one frame at a time.
 pub struct Slam {
     vo: VisualOdometry,
     coupling: Option<Coupling>,
+    camera: PinholeCamera,
+    /// The world frame, once known (searched for in the first frames' floor until then).
+    world: Option<WorldFrame>,
+    /// Floors seen (camera coordinates) and their inlier counts, by frame position: the
+    /// world frame is made of them at the end, with the frames' final poses.
+    floors: Vec<(usize, Plane, usize)>,
     frames: Vec<FrameRecord>,
     /// Wall time in the odometry (s).
     vo_wall_s: f64,
@@ -72,10 +86,36 @@ impl Slam {
         Ok(Self {
             vo,
             coupling,
+            camera,
+            world: None,
+            floors: Vec::new(),
             frames: Vec::new(),
             vo_wall_s: 0.0,
             wall_s: 0.0,
         })
+    }
+
+    /// The same SLAM finding its world frame by `plan` (the floor by default).
+    pub fn with_world(mut self, plan: WorldPlan) -> Self {
+        self.world = match plan {
+            WorldPlan::Floor => None,
+            WorldPlan::Mounting {
+                pitch_deg,
+                height_m,
+            } => Some(WorldFrame::from_mounting(pitch_deg, height_m)),
+        };
+        self
+    }
+
+    /// Looks for the floor in the depth of the first frames and of keyframes, unless the
+    /// world frame is given.
+    fn look_for_floor(&mut self, frame: &RgbdFrame, keyframe: bool) {
+        let position = self.frames.len();
+        if self.world.is_none() && (keyframe || position < world::FLOOR_SEARCH_FRAMES) {
+            if let Some((plane, inliers)) = floor_in_camera(&frame.depth_m, &self.camera) {
+                self.floors.push((position, plane, inliers));
+            }
+        }
     }
 
     /// Answers due before the next frame: waits under the fixed schedule. Returns the
@@ -100,6 +140,9 @@ impl Slam {
                 "frame {} ({:.6} s): tracking failed ({} tracked, {} inliers); pose predicted by constant velocity",
                 r.index, r.t_s, r.tracked, r.inliers
             );
+        }
+        if r.status != TrackingStatus::Lost {
+            self.look_for_floor(frame, r.keyframe);
         }
         let position = self.frames.len();
         if let (Some(c), Some(info)) = (self.coupling.as_mut(), r.new_keyframe.take()) {
@@ -161,16 +204,39 @@ impl Slam {
         self.frames.last().context("the frame was just recorded")
     }
 
-    /// Waits for the back end, runs its final optimization, and returns everything.
+    /// Waits for the back end, runs its final optimization, and returns everything in the
+    /// world frame.
     pub fn finish(self) -> Result<RunOutput> {
         let start = Instant::now();
         let backend = self.coupling.map(finish_backend).transpose()?;
-        Ok(RunOutput {
+        let mut out = RunOutput {
             frames: self.frames,
             vo_wall_s: self.vo_wall_s,
-            wall_s: self.wall_s + start.elapsed().as_secs_f64(),
+            wall_s: 0.0,
             backend,
-        })
+            world: WorldFrame::first_camera(),
+        };
+        let world = self.world.or_else(|| {
+            let poses = out.final_poses();
+            let floors: Vec<_> = self
+                .floors
+                .iter()
+                .filter_map(|&(i, plane, n)| Some((*poses.get(i)?, plane, n)))
+                .collect();
+            WorldFrame::from_floors(&floors)
+        });
+        out.world = world.unwrap_or_else(|| {
+            tracing::warn!(
+                "no floor seen in the first {} frames nor in keyframes, and no mounting given: \
+                 poses are in the first camera's frame (y down), not gravity-aligned",
+                world::FLOOR_SEARCH_FRAMES
+            );
+            WorldFrame::first_camera()
+        });
+        tracing::info!("world frame: {}", out.world.describe());
+        out.move_to_world();
+        out.wall_s = self.wall_s + start.elapsed().as_secs_f64();
+        Ok(out)
     }
 }
 
@@ -191,15 +257,17 @@ pub fn progress_bar(total: usize, what: &str, show: bool) -> ProgressBar {
 }
 
 /// Runs the SLAM over the first `max_frames` frames of a sequence (all when `None`), frames
-/// decoded ahead on a background thread: the odometry alone when `backend` is `None`.
+/// decoded ahead on a background thread: the odometry alone when `backend` is `None`; the
+/// outputs in the world frame `world` finds.
 pub fn run_slam(
     seq: &TumSequence,
     config: VoConfig,
     backend: Option<(BackendConfig, Schedule)>,
+    world: WorldPlan,
     max_frames: Option<usize>,
     progress: bool,
 ) -> Result<RunOutput> {
-    let mut slam = Slam::new(&seq.camera, config, backend)?;
+    let mut slam = Slam::new(&seq.camera, config, backend)?.with_world(world);
     let stream = seq.stream(max_frames, 4);
     let pb = progress_bar(stream.len(), "tracking", progress);
     for item in stream {

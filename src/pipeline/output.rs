@@ -1,5 +1,6 @@
 //! What a run produced: a record per frame, the back end's summary, and the final poses.
 
+use crate::pipeline::world::WorldFrame;
 use anyhow::{Context, Result};
 use nalgebra::Isometry3;
 use stride_backend::{BackendConfig, KeyframeReport};
@@ -115,9 +116,29 @@ pub struct RunOutput {
     pub wall_s: f64,
     /// The back end's part, when there was one.
     pub backend: Option<BackendSummary>,
+    /// The world frame every pose and point of this output is in.
+    pub world: WorldFrame,
 }
 
 impl RunOutput {
+    /// Moves every pose and point from the SLAM's frame into the world
+    /// (`self.world.world_from_slam`).
+    pub(crate) fn move_to_world(&mut self) {
+        let w = self.world.world_from_slam;
+        for f in &mut self.frames {
+            f.live_world_from_camera = w * f.live_world_from_camera;
+            f.odometry_world_from_camera = w * f.odometry_world_from_camera;
+        }
+        if let Some(b) = &mut self.backend {
+            for p in &mut b.points_world {
+                *p = w * *p;
+            }
+            for (_, pose) in &mut b.keyframe_poses {
+                *pose = w * *pose;
+            }
+        }
+    }
+
     /// The final `world_from_camera` of every frame (the live poses without a back end).
     ///
     /// A frame between keyframes `A` (its own) and `B` (the next) has two estimates, each
