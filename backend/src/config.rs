@@ -82,6 +82,12 @@ pub struct BackendConfig {
     /// The final optimization frees at most this many keyframes (the newest); the others
     /// that see their points are held fixed. Bounds its time and memory on long runs.
     pub final_max_keyframes: usize,
+    /// The map keeps at most this many keyframes: beyond it, the most redundant keyframes
+    /// outside the local window (most of their points seen by others; the oldest first on a
+    /// tie) are culled, so that walking over the same place for hours does not grow the
+    /// map. By default the final optimization's span: keyframes older than that would be
+    /// held fixed anyway.
+    pub max_keyframes: usize,
 }
 
 impl Default for BackendConfig {
@@ -107,6 +113,7 @@ impl Default for BackendConfig {
             redundant_observers: 3,
             point_grace_keyframes: 3,
             final_max_keyframes: 300,
+            max_keyframes: 300,
         }
     }
 }
@@ -172,6 +179,13 @@ impl BackendConfig {
                 "redundant_fraction",
                 self.redundant_fraction.to_string(),
                 "in (0, 1]",
+            );
+        }
+        if self.max_keyframes < 2 * self.window_keyframes + self.max_fixed_keyframes {
+            return bad(
+                "max_keyframes",
+                self.max_keyframes.to_string(),
+                ">= 2 window_keyframes + max_fixed_keyframes",
             );
         }
         let m = &self.matching;

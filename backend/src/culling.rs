@@ -35,50 +35,96 @@ impl Backend {
 
     /// Removes the window's redundant keyframes: those (other than the first) with at least
     /// `redundant_fraction` of their points seen by `redundant_observers` other keyframes.
-    /// The newest is one of them when it adds nothing. Each keeps its pose relative to its
-    /// neighbour in time (see below). Returns how many were removed.
+    /// The newest is one of them when it adds nothing. Returns how many were removed.
     pub(crate) fn cull_keyframes(&mut self, window: &[KeyframeId]) -> usize {
         let mut removed = 0;
         for &k in window {
             if Some(k) == self.first {
                 continue;
             }
-            let Some(kf) = self.map.keyframe(k) else {
-                continue;
-            };
-            let mut total = 0usize;
-            let mut redundant = 0usize;
-            for p in kf.points() {
-                total += 1;
-                let others = self
-                    .map
-                    .point(p)
-                    .map_or(0, |mp| mp.observations.len().saturating_sub(1));
-                if others >= self.config.redundant_observers {
-                    redundant += 1;
-                }
-            }
-            if total == 0 || (redundant as f64) < self.config.redundant_fraction * total as f64 {
-                continue;
-            }
-            // Its pose stays relative to its neighbour in time, not to the keyframe sharing
-            // the most points (which may come from another pass over the place, with drift
-            // of its own that later corrections move differently).
-            let Some(parent) = self
-                .map
-                .keyframes()
-                .range(..k)
-                .next_back()
-                .or_else(|| self.map.keyframes().range(k + 1..).next())
-                .map(|(&p, _)| p)
-            else {
-                continue;
-            };
-            if self.map.cull_keyframe(k, parent) {
-                self.pose_edges.retain(|e| e.from != k && e.to != k);
+            let fraction = self.redundancy(k);
+            if fraction >= self.config.redundant_fraction && self.cull_into_neighbour(k) {
                 removed += 1;
             }
         }
         removed
+    }
+
+    /// Keeps the map within `max_keyframes`: culls the most redundant keyframes outside
+    /// `window` (the oldest first among equally redundant ones) until it fits. Returns how
+    /// many were removed.
+    pub(crate) fn cull_to_budget(&mut self, window: &[KeyframeId]) -> usize {
+        let excess = self
+            .map
+            .keyframes()
+            .len()
+            .saturating_sub(self.config.max_keyframes);
+        if excess == 0 {
+            return 0;
+        }
+        let mut ranked: Vec<(f64, KeyframeId)> = self
+            .map
+            .keyframes()
+            .keys()
+            .filter(|&&k| Some(k) != self.first && !window.contains(&k))
+            .map(|&k| (self.redundancy(k), k))
+            .collect();
+        ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let mut removed = 0;
+        for (_, k) in ranked {
+            if removed == excess {
+                break;
+            }
+            if self.cull_into_neighbour(k) {
+                removed += 1;
+            }
+        }
+        removed
+    }
+
+    /// The fraction of keyframe `k`'s points that `redundant_observers` other keyframes
+    /// see (0 for a keyframe without points, or unknown).
+    fn redundancy(&self, k: KeyframeId) -> f64 {
+        let Some(kf) = self.map.keyframe(k) else {
+            return 0.0;
+        };
+        let (mut total, mut redundant) = (0usize, 0usize);
+        for p in kf.points() {
+            total += 1;
+            let others = self
+                .map
+                .point(p)
+                .map_or(0, |mp| mp.observations.len().saturating_sub(1));
+            if others >= self.config.redundant_observers {
+                redundant += 1;
+            }
+        }
+        if total == 0 {
+            0.0
+        } else {
+            redundant as f64 / total as f64
+        }
+    }
+
+    /// Culls keyframe `k`, keeping its pose relative to its neighbour in time, not to the
+    /// keyframe sharing the most points (which may come from another pass over the place,
+    /// with drift of its own that later corrections move differently). False when it has
+    /// no neighbour or could not be culled.
+    fn cull_into_neighbour(&mut self, k: KeyframeId) -> bool {
+        let Some(parent) = self
+            .map
+            .keyframes()
+            .range(..k)
+            .next_back()
+            .or_else(|| self.map.keyframes().range(k + 1..).next())
+            .map(|(&p, _)| p)
+        else {
+            return false;
+        };
+        if !self.map.cull_keyframe(k, parent) {
+            return false;
+        }
+        self.pose_edges.retain(|e| e.from != k && e.to != k);
+        true
     }
 }
