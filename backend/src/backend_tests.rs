@@ -346,3 +346,48 @@ fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
     }
     assert!((n - 5..n).any(|i| moved(i) > 0.0), "the newest five move");
 }
+
+#[test]
+fn the_keyframe_budget_bounds_the_map_and_keeps_culled_poses() {
+    // Keyframes over the same scene, the window's redundancy rule off: with a budget of 8
+    // (the final span 5), the map never holds more than 8, and a keyframe culled for the
+    // budget keeps the pose it had.
+    let run = synthetic_run(30, 0.004, 3);
+    let config = BackendConfig {
+        final_max_keyframes: 5,
+        max_keyframes: 8,
+        redundant_observers: 1000,
+        ..BackendConfig::default()
+    };
+    let mut backend = Backend::new(camera(), config).unwrap();
+    let mut poses_at_cull: Vec<(u64, Isometry3<f64>)> = Vec::new();
+    for input in run.inputs.clone() {
+        backend.add_keyframe(input).unwrap();
+        assert!(backend.map().keyframes().len() <= 8);
+        for &k in backend.map().culled().keys() {
+            if !poses_at_cull.iter().any(|(c, _)| *c == k) {
+                poses_at_cull.push((k, backend.map().pose_of(k).unwrap()));
+            }
+        }
+    }
+    backend.finish().unwrap();
+    assert!(poses_at_cull.len() >= 5, "{} culled", poses_at_cull.len());
+    let kept = poses_at_cull
+        .iter()
+        .filter(|(k, pose)| {
+            let now = backend.map().pose_of(*k).unwrap();
+            (now.inverse() * pose).translation.vector.norm() < 1e-12
+        })
+        .count();
+    assert_eq!(
+        kept,
+        poses_at_cull.len(),
+        "culled keyframes that moved afterwards"
+    );
+    let bad = BackendConfig {
+        max_keyframes: 300,
+        ..BackendConfig::default()
+    };
+    let err = Backend::new(camera(), bad).err().unwrap().to_string();
+    assert!(err.contains("max_keyframes"), "{err}");
+}

@@ -82,11 +82,11 @@ pub struct BackendConfig {
     /// The final optimization frees at most this many keyframes (the newest); the others
     /// that see their points are held fixed. Bounds its time and memory on long runs.
     pub final_max_keyframes: usize,
-    /// The map keeps at most this many keyframes: beyond it, the most redundant keyframes
-    /// outside the local window (most of their points seen by others; the oldest first on a
-    /// tie) are culled, so that walking over the same place for hours does not grow the
-    /// map. By default the final optimization's span: keyframes older than that would be
-    /// held fixed anyway.
+    /// The map keeps at most this many keyframes: beyond it, the most redundant of those
+    /// older than the final optimization's span (`final_max_keyframes`; most of their
+    /// points seen by others, the oldest first on a tie) are culled with their poses kept,
+    /// so that walking over the same place for hours does not grow the map. Must exceed
+    /// `final_max_keyframes`: the older keyframes it keeps anchor the final optimization.
     pub max_keyframes: usize,
 }
 
@@ -113,7 +113,7 @@ impl Default for BackendConfig {
             redundant_observers: 3,
             point_grace_keyframes: 3,
             final_max_keyframes: 300,
-            max_keyframes: 300,
+            max_keyframes: 400,
         }
     }
 }
@@ -181,11 +181,14 @@ impl BackendConfig {
                 "in (0, 1]",
             );
         }
-        if self.max_keyframes < 2 * self.window_keyframes + self.max_fixed_keyframes {
+        if self.max_keyframes <= self.final_max_keyframes {
             return bad(
                 "max_keyframes",
-                self.max_keyframes.to_string(),
-                ">= 2 window_keyframes + max_fixed_keyframes",
+                format!(
+                    "{} (final_max_keyframes {})",
+                    self.max_keyframes, self.final_max_keyframes
+                ),
+                "> final_max_keyframes",
             );
         }
         let m = &self.matching;

@@ -50,32 +50,31 @@ impl Backend {
         removed
     }
 
-    /// Keeps the map within `max_keyframes`: culls the most redundant keyframes outside
-    /// `window` (the oldest first among equally redundant ones) until it fits. Returns how
-    /// many were removed.
-    pub(crate) fn cull_to_budget(&mut self, window: &[KeyframeId]) -> usize {
-        let excess = self
-            .map
-            .keyframes()
-            .len()
-            .saturating_sub(self.config.max_keyframes);
-        if excess == 0 {
+    /// Keeps the map within `max_keyframes`: culls the most redundant keyframes older than
+    /// the final optimization's span (the oldest first among equally redundant ones) until
+    /// it fits. Those are held fixed by every later optimization anyway, so each keeps its
+    /// pose as it is (it is culled into the first keyframe, the gauge, which never moves).
+    /// Returns how many were removed.
+    pub(crate) fn cull_to_budget(&mut self) -> usize {
+        let keyframes = self.map.keyframes();
+        let excess = keyframes.len().saturating_sub(self.config.max_keyframes);
+        let Some(first) = self.first.filter(|_| excess > 0) else {
             return 0;
-        }
-        let mut ranked: Vec<(f64, KeyframeId)> = self
-            .map
-            .keyframes()
+        };
+        let settled = keyframes
+            .len()
+            .saturating_sub(self.config.final_max_keyframes);
+        let mut ranked: Vec<(f64, KeyframeId)> = keyframes
             .keys()
-            .filter(|&&k| Some(k) != self.first && !window.contains(&k))
+            .take(settled)
+            .filter(|&&k| k != first)
             .map(|&k| (self.redundancy(k), k))
             .collect();
         ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut removed = 0;
-        for (_, k) in ranked {
-            if removed == excess {
-                break;
-            }
-            if self.cull_into_neighbour(k) {
+        for (_, k) in ranked.into_iter().take(excess) {
+            if self.map.cull_keyframe(k, first) {
+                self.pose_edges.retain(|e| e.from != k && e.to != k);
                 removed += 1;
             }
         }
