@@ -144,26 +144,15 @@ mod tests {
             m.cov[(2, 2)] > m.cov[(0, 0)],
             "depth is the least certain axis"
         );
+        let rejected = |depth: &DepthImage, px: (f32, f32)| {
+            measure(depth, &cam, px, &ShutterMotion::default(), &cfg).is_none()
+        };
         *depth.get_mut(11, 10).unwrap() = 2.5; // an edge next to the keypoint
-        assert!(measure(&depth, &cam, (10.0, 10.0), &ShutterMotion::default(), &cfg).is_none());
+        assert!(rejected(&depth, (10.0, 10.0)));
         *depth.get_mut(11, 10).unwrap() = 0.0; // a hole
-        assert!(measure(&depth, &cam, (10.0, 10.0), &ShutterMotion::default(), &cfg).is_none());
-        assert!(measure(
-            &DepthImage::filled(20, 20, 9.0),
-            &cam,
-            (10.0, 10.0),
-            &ShutterMotion::default(),
-            &cfg
-        )
-        .is_none());
-        assert!(measure(
-            &DepthImage::filled(20, 20, 2.0),
-            &cam,
-            (0.2, 10.0),
-            &ShutterMotion::default(),
-            &cfg
-        )
-        .is_none());
+        assert!(rejected(&depth, (10.0, 10.0)));
+        assert!(rejected(&DepthImage::filled(20, 20, 9.0), (10.0, 10.0)));
+        assert!(rejected(&DepthImage::filled(20, 20, 2.0), (0.2, 10.0)));
     }
 
     #[test]
