@@ -20,7 +20,7 @@ use stride_core::rng::SplitMix64;
 /// The floor is looked for in every one of the first frames (then in keyframes only).
 pub const FLOOR_SEARCH_FRAMES: usize = 10;
 /// Depth pixels sampled for the floor: every this many pixels along rows and columns.
-const FLOOR_PIXEL_STEP: u32 = 8;
+const FLOOR_PIXEL_STEP: u32 = 12;
 /// Depths used for the floor (m): the near, accurate range of a PrimeSense camera.
 const FLOOR_DEPTH_M: (f64, f64) = (0.3, 4.0);
 /// A point belongs to the floor within this distance (m).
@@ -198,7 +198,7 @@ pub fn floor_in_camera(depth: &DepthImage, camera: &PinholeCamera) -> Option<(Pl
             && (FLOOR_HEIGHT_M.0..=FLOOR_HEIGHT_M.1).contains(&height)
     };
     let mut rng = SplitMix64::new(0xF1007);
-    let (plane, inliers) = ransac_plane(&points, FLOOR_THRESHOLD_M, 200, &mut rng, below)?;
+    let (plane, inliers) = ransac_plane(&points, FLOOR_THRESHOLD_M, 150, &mut rng, below)?;
     ((inliers as f64) >= FLOOR_MIN_FRACTION * points.len() as f64)
         .then(|| (plane.facing(&Point3::origin()), inliers))
 }
