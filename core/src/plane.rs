@@ -147,7 +147,7 @@ mod tests {
         })
         .unwrap();
         let plane = plane.facing(&Point3::origin());
-        assert!(inliers >= 590 && inliers <= 610, "{inliers}");
+        assert!((590..=610).contains(&inliers), "{inliers}");
         assert!(plane.normal.dot(&up) > 0.99999, "{:?}", plane.normal);
         assert!((plane.distance_m(&Point3::origin()) - 0.5).abs() < 1e-3);
         // Same seed, same plane.

@@ -60,7 +60,12 @@ pub fn write_html(
         a.seed,
         out.world.describe()
     ));
-    let g = |k: &str| j.get(k).cloned().unwrap_or(Value::Null).to_string();
+    // A report value as text (strings without JSON's quotes).
+    let g = |k: &str| match j.get(k) {
+        Some(Value::String(s)) => s.clone(),
+        Some(v) => v.to_string(),
+        None => "null".into(),
+    };
     rep.table(
         &["quantity", "value"],
         vec![
