@@ -52,8 +52,8 @@ impl Backend {
 
     /// Keeps the map within `max_keyframes`: culls the most redundant keyframes older than
     /// the final optimization's span (the oldest first among equally redundant ones) until
-    /// it fits. Those are held fixed by every later optimization anyway, so each keeps its
-    /// pose as it is (it is culled into the first keyframe, the gauge, which never moves).
+    /// it fits. The final optimization would hold them fixed anyway, so each keeps its pose
+    /// as it is (it is culled into the first keyframe, the gauge, which never moves).
     /// Returns how many were removed.
     pub(crate) fn cull_to_budget(&mut self) -> usize {
         let keyframes = self.map.keyframes();

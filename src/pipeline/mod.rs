@@ -46,7 +46,8 @@ pub struct Slam {
     vo: VisualOdometry,
     coupling: Option<Coupling>,
     camera: PinholeCamera,
-    /// The world frame, once known (searched for in the first frames' floor until then).
+    /// The world frame when it is given (a mounting); otherwise made at the end from
+    /// `floors`.
     world: Option<WorldFrame>,
     /// Floors seen (camera coordinates) and their inlier counts, by frame position: the
     /// world frame is made of them at the end, with the frames' final poses.
