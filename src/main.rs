@@ -20,8 +20,13 @@ fn main() -> std::process::ExitCode {
             }) {
                 return std::process::ExitCode::SUCCESS;
             }
+            // Exit codes: 1 a limit exceeded (`stride eval --max-*`), 2 any other error.
+            if let Some(limit) = e.downcast_ref::<cli::gates::LimitExceeded>() {
+                eprintln!("{limit}");
+                return std::process::ExitCode::from(1);
+            }
             eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            std::process::ExitCode::from(2)
         }
     }
 }

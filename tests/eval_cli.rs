@@ -406,3 +406,55 @@ fn bad_options_fail_cleanly() {
         assert!(!err.contains("panicked"));
     }
 }
+
+#[test]
+fn limits_set_the_exit_code() {
+    // evo's figures for this pair: ATE (SE(3)) rmse 0.013470 m; RPE rmse 0.005764 m.
+    // 0 within the limits, 1 beyond one (with the statistic, its value and the limit on
+    // stderr, the results still printed), 2 for bad input.
+    let (Some(gt), Some(est)) = (
+        traj("freiburg1_xyz-groundtruth.txt"),
+        traj("freiburg1_xyz-rgbdslam.txt"),
+    ) else {
+        return;
+    };
+    let code = |extra: &[&str]| {
+        let mut args = vec!["eval", "ate", &gt, &est, "--align", "se3"];
+        args.extend_from_slice(extra);
+        let out = run(&args);
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (c, stdout, _) = code(&["--max-rmse", "0.0135", "--max-mean", "0.013"]);
+    assert_eq!(c, Some(0));
+    assert!(stdout.contains("rmse"), "{stdout}");
+    let (c, stdout, stderr) = code(&["--max-rmse", "0.0134"]);
+    assert_eq!(c, Some(1), "{stderr}");
+    assert!(stdout.contains("0.013470"), "results are printed: {stdout}");
+    assert!(
+        stderr.contains("ATE translation rmse 0.013470 m > --max-rmse 0.0134 m"),
+        "{stderr}"
+    );
+    let (c, _, stderr) = code(&["--max-rot-deg", "0.5"]);
+    assert!(c == Some(1) && stderr.contains("rotation rmse"), "{stderr}");
+    let (c, _, stderr) = code(&["--max-rmse", "-1"]);
+    assert!(c == Some(2) && stderr.contains("--max-rmse -1"), "{stderr}");
+    let out = run(&[
+        "eval",
+        "ate",
+        &gt,
+        "/nonexistent/est.txt",
+        "--max-rmse",
+        "1",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = run(&["eval", "rpe", &gt, &est, "--max-rmse", "0.005"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.code() == Some(1) && stderr.contains("RPE translation rmse 0.005764"),
+        "{stderr}"
+    );
+}

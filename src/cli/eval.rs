@@ -1,5 +1,6 @@
 //! `stride eval ate|rpe`.
 
+use crate::cli::gates::Limits;
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use std::path::{Path, PathBuf};
@@ -57,6 +58,8 @@ pub struct CommonArgs {
     /// Write report.md, report.html and the plots into this folder.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
+    #[command(flatten)]
+    limits: Limits,
 }
 
 #[derive(Debug, Args)]
@@ -131,6 +134,7 @@ fn load(
     stride_core::trajectory::Trajectory,
 )> {
     c.check_outputs()?;
+    c.limits.validate()?;
     let (gt, est) = c.paths()?;
     let gt = read_tum_trajectory(gt).context("reading the ground truth")?;
     let est = read_tum_trajectory(est).context("reading the estimate")?;
@@ -235,7 +239,8 @@ fn run_ate(a: AteArgs) -> Result<()> {
         || r.chart_svg(),
         |rep| r.add_to_report(rep, "ate"),
         "stride eval: absolute trajectory error",
-    )
+    )?;
+    c.limits.check("ATE", &r.trans_m, &r.rot_deg)
 }
 
 fn run_rpe(a: RpeArgs) -> Result<()> {
@@ -268,5 +273,6 @@ fn run_rpe(a: RpeArgs) -> Result<()> {
         || r.chart_svg(),
         |rep| r.add_to_report(rep, "rpe"),
         "stride eval: relative pose error",
-    )
+    )?;
+    c.limits.check("RPE", &r.trans_m, &r.rot_deg)
 }

@@ -3,6 +3,7 @@
 mod bench;
 mod demo;
 mod eval;
+pub mod gates;
 mod map;
 mod run;
 mod run_report;
