@@ -58,7 +58,9 @@ impl Limits {
             .zip(measured)
             .filter_map(|((flag, limit), (name, value, unit))| {
                 let limit = limit?;
-                (!(value <= limit))
+                // A NaN statistic exceeds every limit.
+                let within = value.is_finite() && value <= limit;
+                (!within)
                     .then(|| format!("{what} {name} {value:.6} {unit} > {flag} {limit} {unit}"))
             })
             .collect();
