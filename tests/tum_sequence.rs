@@ -172,20 +172,8 @@ fn jpeg_colour_images_and_a_repeated_list_line_are_read() {
     std::fs::write(dst.join("depth.txt"), &depth_txt).unwrap();
     std::fs::copy(src.join("groundtruth.txt"), dst.join("groundtruth.txt")).unwrap();
     let run = |dir: &std::path::Path, out: &str| {
-        let out = tmp.path().join(out);
-        let err = common::run_ok(&[
-            "run",
-            "--dataset",
-            dir.to_str().unwrap(),
-            "--camera",
-            "fr3",
-            "--out",
-            out.to_str().unwrap(),
-            "--vo-only",
-            "--max-frames",
-            "60",
-        ]);
-        (common::report(&out), err)
+        let extra = ["--camera", "fr3", "--vo-only", "--max-frames", "60"];
+        common::run_logged("run", dir, &tmp.path().join(out), &extra)
     };
     let (jpeg, err) = run(&dst, "jpeg");
     assert!(

@@ -21,15 +21,7 @@ fn teddy_every_frame_tracked_and_ate_within_two_centimetres() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
-    run_ok(&[
-        "run",
-        "--dataset",
-        seq.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--vo-only",
-    ]);
-    let r = report(&out);
+    let r = common::run_report("run", &seq, &out, &["--vo-only"]);
     assert_eq!(r["frames"], 193);
     assert_eq!(r["frames_tracked"], 193, "every frame tracked: {r}");
     assert_eq!(r["frames_lost"], 0);
@@ -161,17 +153,7 @@ fn missing_corrupt_wrong_size_and_empty_depth_frames_are_counted_not_fatal() {
     .unwrap();
 
     let out = tmp.path().join("out");
-    let err = run_ok(&[
-        "run",
-        "--dataset",
-        dir.to_str().unwrap(),
-        "--camera",
-        "fr3",
-        "--out",
-        out.to_str().unwrap(),
-        "--vo-only",
-    ]);
-    let r = report(&out);
+    let (r, err) = common::run_logged("run", &dir, &out, &["--camera", "fr3", "--vo-only"]);
     assert_eq!(r["frames"], 30);
     assert_eq!(r["frames_skipped"], 3, "{r}");
     assert_eq!(r["frames_lost"], 1, "the frame without depth: {r}");

@@ -56,11 +56,21 @@ pub fn run_report(
     out: &std::path::Path,
     extra: &[&str],
 ) -> serde_json::Value {
+    run_logged(command, dataset, out, extra).0
+}
+
+/// [`run_report`], with the warnings and errors the command wrote on stderr.
+pub fn run_logged(
+    command: &str,
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> (serde_json::Value, String) {
     let (d, o) = (dataset.display().to_string(), out.display().to_string());
     let mut args = vec![command, "--dataset", &d, "--out", &o, "-q"];
     args.extend_from_slice(extra);
-    run_ok(&args);
-    report(out)
+    let err = run_ok(&args);
+    (report(out), err)
 }
 
 /// The report.json a command wrote into `dir`.
