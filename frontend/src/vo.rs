@@ -120,6 +120,11 @@ impl VisualOdometry {
         &self.config
     }
 
+    /// The camera the frames come from.
+    pub fn camera(&self) -> &PinholeCamera {
+        &self.camera
+    }
+
     fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
         match self.last_motion {
             Some((m, dt)) if dt > 0.0 => {

@@ -32,7 +32,6 @@ use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
 use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
-use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::plane::Plane;
 use stride_datasets::camera_config::CameraConfig;
@@ -45,7 +44,6 @@ use world::{floor_in_camera, WorldFrame, WorldPlan};
 pub struct Slam {
     vo: VisualOdometry,
     coupling: Option<Coupling>,
-    camera: PinholeCamera,
     /// The world frame when it is given (a mounting); otherwise made at the end from
     /// `floors`.
     world: Option<WorldFrame>,
@@ -87,7 +85,6 @@ impl Slam {
         Ok(Self {
             vo,
             coupling,
-            camera,
             world: None,
             floors: Vec::new(),
             frames: Vec::new(),
@@ -113,7 +110,7 @@ impl Slam {
     fn look_for_floor(&mut self, frame: &RgbdFrame, keyframe: bool) {
         let position = self.frames.len();
         if self.world.is_none() && (keyframe || position < world::FLOOR_SEARCH_FRAMES) {
-            if let Some((plane, inliers)) = floor_in_camera(&frame.depth_m, &self.camera) {
+            if let Some((plane, inliers)) = floor_in_camera(&frame.depth_m, self.vo.camera()) {
                 self.floors.push((position, plane, inliers));
             }
         }
