@@ -70,6 +70,10 @@ pub struct KeyframeUpdate {
     pub keyframe_id: KeyframeId,
     /// Its `world_from_camera` after the local optimization (m).
     pub world_from_keyframe: Isometry3<f64>,
+    /// `world_from_camera` of every keyframe of the local window after the optimization
+    /// (this one included, culled ones excluded), by identifier: what a consumer that placed
+    /// data at older poses (an elevation map) needs to see whether they moved.
+    pub window_poses: Vec<(KeyframeId, Isometry3<f64>)>,
     /// What was done.
     pub report: KeyframeReport,
 }
@@ -265,10 +269,15 @@ impl Backend {
         if let Some(old) = id.checked_sub(settled) {
             self.map.drop_unmapped_features(old);
         }
+        let window_poses = window
+            .iter()
+            .filter_map(|&k| Some((k, self.map.keyframe(k)?.world_from_camera)))
+            .collect();
         report.time_s = start.elapsed().as_secs_f64();
         Ok(KeyframeUpdate {
             keyframe_id: id,
             world_from_keyframe: self.map.pose_of(id).unwrap_or(predicted),
+            window_poses,
             report,
         })
     }

@@ -10,6 +10,7 @@ use crate::backend::{Backend, KeyframeInput, KeyframeUpdate};
 use crate::error::BackendError;
 use std::sync::mpsc::{channel, Receiver, Sender, TryRecvError};
 use std::thread::JoinHandle;
+use stride_core::panic_message;
 
 /// What the frontend sends.
 enum Request {
@@ -34,13 +35,6 @@ pub struct Finished {
     pub final_solve: Option<SolveReport>,
     /// Updates that were still queued when the run finished, in order.
     pub late_updates: Vec<KeyframeUpdate>,
-}
-
-fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
-    p.downcast_ref::<&str>()
-        .map(|s| (*s).to_owned())
-        .or_else(|| p.downcast_ref::<String>().cloned())
-        .unwrap_or_else(|| "unknown panic".into())
 }
 
 impl BackendThread {

@@ -31,3 +31,13 @@ pub mod trajectory;
 pub mod uncertainty;
 
 pub use nalgebra;
+
+/// The message of a thread's panic (`JoinHandle::join`'s error), for errors that report a
+/// dead worker thread.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
