@@ -244,7 +244,7 @@ pub fn read_grid(npy: &Path, header: Option<&Path>) -> Result<Grid<f32>, Dataset
 /// one pixel per cell (downsampled by an integer factor to at most `max_side` pixels).
 pub fn relief_png(grid: &Grid<f32>, max_side: usize) -> Result<Vec<u8>, String> {
     let g = grid.geometry;
-    let step = g.rows.max(g.cols).div_ceil(max_side.max(1)).max(1);
+    let (step, _) = preview_geometry(grid, max_side);
     let (h, w) = (g.rows.div_ceil(step), g.cols.div_ceil(step));
     let (lo, hi) = grid.min_max().unwrap_or((0.0, 1.0));
     let span = f64::from((hi - lo).max(1e-6));
@@ -274,6 +274,48 @@ pub fn relief_png(grid: &Grid<f32>, max_side: usize) -> Result<Vec<u8>, String> 
             let (cr, cg, cb) = stride_output::colormap::viridis((v - f64::from(lo)) / span);
             let f = |c: u8| (f64::from(c) * shade).round().clamp(0.0, 255.0) as u8;
             px.push([f(cr), f(cg), f(cb)]);
+        }
+    }
+    let img =
+        stride_core::image::Image::from_vec(w as u32, h as u32, px).map_err(|e| e.to_string())?;
+    crate::png_io::encode_rgb(&img)
+}
+
+/// The cells per pixel of a preview of `grid` at most `max_side` pixels on a side
+/// ([`relief_png`], [`heat_png`]), and the x-y extent `(x_min, x_max, y_min, y_max)` (m) its
+/// pixels cover, for placing it on axes.
+pub fn preview_geometry(grid: &Grid<f32>, max_side: usize) -> (usize, (f64, f64, f64, f64)) {
+    let g = grid.geometry;
+    let step = g.rows.max(g.cols).div_ceil(max_side.max(1)).max(1);
+    let span = |n: usize| (n.div_ceil(step) * step) as f64 * g.resolution;
+    let (x0, y0) = (
+        g.origin_x - g.resolution / 2.0,
+        g.origin_y - g.resolution / 2.0,
+    );
+    (step, (x0, x0 + span(g.cols), y0, y0 + span(g.rows)))
+}
+
+/// A heat map of a grid as PNG bytes: viridis from `range.0` (dark) to `range.1` (yellow),
+/// values outside clamped, NaN cells light grey, +y up, one pixel per cell (downsampled by an
+/// integer factor to at most `max_side` pixels, see [`preview_geometry`]).
+pub fn heat_png(grid: &Grid<f32>, range: (f64, f64), max_side: usize) -> Result<Vec<u8>, String> {
+    let g = grid.geometry;
+    let (step, _) = preview_geometry(grid, max_side);
+    let (h, w) = (g.rows.div_ceil(step), g.cols.div_ceil(step));
+    let span = (range.1 - range.0).max(1e-12);
+    let mut px = Vec::with_capacity(w * h);
+    for y in 0..h {
+        let r = (h - 1 - y) * step; // image top = +y edge
+        for x in 0..w {
+            let v = grid
+                .get(r.min(g.rows - 1), (x * step).min(g.cols - 1))
+                .map_or(f64::NAN, f64::from);
+            if v.is_nan() {
+                px.push([225u8, 225, 225]);
+            } else {
+                let (cr, cg, cb) = stride_output::colormap::viridis((v - range.0) / span);
+                px.push([cr, cg, cb]);
+            }
         }
     }
     let img =

@@ -58,6 +58,20 @@ pub struct ColoredPath {
     pub values: Vec<f64>,
 }
 
+/// An image laid on the chart's axes (a map seen from above), coloured by viridis over a
+/// value range that the chart's colour bar shows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Raster {
+    /// Colour-bar title (with unit).
+    pub label: String,
+    /// PNG bytes, top row at `extent`'s largest y.
+    pub png: Vec<u8>,
+    /// `(x_min, x_max, y_min, y_max)` the image covers, in chart units.
+    pub extent: (f64, f64, f64, f64),
+    /// The values of the colour map's ends (dark, yellow).
+    pub range: (f64, f64),
+}
+
 /// One chart panel.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Chart {
@@ -71,6 +85,9 @@ pub struct Chart {
     pub series: Vec<Series>,
     /// An optional value-coloured path, drawn above the series, with a colour bar.
     pub colored: Option<ColoredPath>,
+    /// An optional image under everything, with its colour bar (which replaces the
+    /// coloured path's).
+    pub raster: Option<Raster>,
     /// Same scale on both axes (for maps and trajectories seen from above).
     pub equal_aspect: bool,
     /// Include y = 0 in the range (for error plots).
@@ -199,7 +216,11 @@ fn polyline(out: &mut String, f: &Frame, pts: &[(f64, f64)], color: &str, dashed
 impl Chart {
     /// Draws the chart into the rectangle `(x, y, w, h)` (pixels) of an SVG being built.
     pub fn render_into(&self, out: &mut String, x: f64, y: f64, w: f64, h: f64) {
-        let colorbar_w = if self.colored.is_some() { 74.0 } else { 0.0 };
+        let colorbar_w = if self.colored.is_some() || self.raster.is_some() {
+            74.0
+        } else {
+            0.0
+        };
         let (ml, mr, mt, mb) = (62.0, 14.0 + colorbar_w, 30.0, 44.0);
         let mut f = Frame {
             x: x + ml,
@@ -215,7 +236,11 @@ impl Chart {
             .series
             .iter()
             .flat_map(|s| s.points.iter().copied())
-            .chain(self.colored.iter().flat_map(|c| c.points.iter().copied()));
+            .chain(self.colored.iter().flat_map(|c| c.points.iter().copied()))
+            .chain(self.raster.iter().flat_map(|r| {
+                let (x0, x1, y0, y1) = r.extent;
+                [(x0, y0), (x1, y1)]
+            }));
         let pts: Vec<(f64, f64)> = all_pts.collect();
         let (x0, x1) = extent(pts.iter().map(|p| p.0)).unwrap_or((0.0, 1.0));
         let (mut y0, y1) = extent(pts.iter().map(|p| p.1)).unwrap_or((0.0, 1.0));
@@ -299,6 +324,18 @@ impl Chart {
             r#"<clipPath id="{clip_id}"><rect x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}"/></clipPath><g clip-path="url(#{clip_id})">"#,
             f.x, f.y, f.w, f.h
         );
+        if let Some(r) = &self.raster {
+            use base64::Engine as _;
+            let (x0, x1, y0, y1) = r.extent;
+            let ((a0, b0), (a1, b1)) = (f.px(x0, y1), f.px(x1, y0));
+            let _ = write!(
+                out,
+                r#"<image x="{a0:.1}" y="{b0:.1}" width="{:.1}" height="{:.1}" preserveAspectRatio="none" style="image-rendering:pixelated" href="data:image/png;base64,{}"/>"#,
+                a1 - a0,
+                b1 - b0,
+                base64::engine::general_purpose::STANDARD.encode(&r.png)
+            );
+        }
         for s in &self.series {
             match s.style {
                 Style::Line => polyline(out, &f, &s.points, &s.color, false),
@@ -385,8 +422,13 @@ impl Chart {
             ly += 15.0;
         }
 
-        // Colour bar.
-        if let (Some(c), Some((vmin, vmax))) = (&self.colored, value_range) {
+        // Colour bar: the raster's, else the coloured path's.
+        let bar = match (&self.raster, &self.colored, value_range) {
+            (Some(r), _, _) => Some((r.label.as_str(), r.range)),
+            (None, Some(c), Some(range)) => Some((c.label.as_str(), range)),
+            _ => None,
+        };
+        if let Some((label, (vmin, vmax))) = bar {
             let bx = f.x + f.w + 14.0;
             let (bw, bh) = (12.0, f.h);
             let steps = 32;
@@ -421,7 +463,7 @@ impl Chart {
                 r##"<text transform="translate({:.1},{:.1}) rotate(-90)" font-size="11" text-anchor="middle" fill="#222">{}</text>"##,
                 bx + bw + 40.0,
                 f.y + bh / 2.0,
-                escape(&c.label)
+                escape(label)
             );
         }
     }
@@ -484,6 +526,7 @@ mod tests {
                 points: vec![(0.0, 0.1), (1.0, 1.1), (2.0, 0.1)],
                 values: vec![0.0, 0.5, 1.0],
             }),
+            raster: None,
             equal_aspect: true,
             y_from_zero: false,
         };
@@ -495,5 +538,33 @@ mod tests {
         assert!(a.contains("<polyline") && a.contains("stroke=\"rgb("));
         assert_eq!(viridis(0.0), (68, 1, 84));
         assert_eq!(viridis(1.0), (253, 231, 37));
+    }
+
+    #[test]
+    fn a_raster_is_embedded_on_its_extent_with_its_own_colour_bar() {
+        let chart = Chart {
+            series: vec![Series::line("path", PALETTE[1], vec![(0.5, 0.5), (1.0, 1.0)])],
+            raster: Some(Raster {
+                label: "height (m)".into(),
+                png: b"png".to_vec(),
+                extent: (0.0, 2.0, 0.0, 1.0),
+                range: (0.25, 0.75),
+            }),
+            ..Chart::default()
+        };
+        let svg = render(&[chart], 1, 400.0, 300.0);
+        // The PNG's bytes as a data URI ("png" in base64), and the bar's title and ends.
+        assert!(svg.contains("href=\"data:image/png;base64,cG5n\""), "{svg}");
+        assert!(svg.contains("height (m)"));
+        assert!(svg.contains(">0.4<") || svg.contains(">0.5<"), "{svg}");
+        // On equal axes the image would span twice as wide as high; here it just has a size.
+        let attr = |name: &str| -> f64 {
+            let i = svg.find("<image").unwrap();
+            let rest = &svg[i..];
+            let k = rest.find(&format!(" {name}=\"")).unwrap() + name.len() + 3;
+            rest[k..].split('"').next().unwrap().parse().unwrap()
+        };
+        let (w, h) = (attr("width"), attr("height"));
+        assert!(w > 0.0 && h > 0.0);
     }
 }

@@ -150,9 +150,18 @@ impl Report {
         md
     }
 
-    /// The report as one self-contained HTML page (figures inline, no external resources
-    /// except image files referenced by [`Block::Image`]).
+    /// The report as one HTML page: figures inline, [`Block::Image`]s linked to their files
+    /// ([`Report::write`] embeds them instead).
     pub fn to_html(&self) -> String {
+        self.html(&mut |file| Ok(escape(file)))
+            .unwrap_or_else(|e: std::io::Error| e.to_string())
+    }
+
+    /// The HTML page with each image's `src` given by `image_src` (a path or a data URI).
+    fn html(
+        &self,
+        image_src: &mut dyn FnMut(&str) -> std::io::Result<String>,
+    ) -> std::io::Result<String> {
         let mut h = String::new();
         let _ = write!(
             h,
@@ -198,7 +207,7 @@ impl Report {
                     let _ = writeln!(
                         h,
                         "<figure><img src=\"{}\" alt=\"{c}\"><figcaption>{c}</figcaption></figure>",
-                        escape(file),
+                        image_src(file)?,
                         c = escape(caption)
                     );
                 }
@@ -208,11 +217,13 @@ impl Report {
             }
         }
         h.push_str("</body></html>\n");
-        h
+        Ok(h)
     }
 
     /// Writes `report.md`, `report.html` and one `.svg` per figure into `dir` (created if
-    /// missing). Every file is written atomically. Returns the paths written.
+    /// missing). Every file is written atomically. report.html is self-contained: the
+    /// images, read from their files in `dir` (which must exist), are embedded as data
+    /// URIs, so the page can be mailed alone. Returns the paths written.
     pub fn write(&self, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
         std::fs::create_dir_all(dir)?;
         let mut written = Vec::new();
@@ -223,16 +234,36 @@ impl Report {
                 written.push(p);
             }
         }
-        for (name, text) in [
-            ("report.md", self.to_markdown()),
-            ("report.html", self.to_html()),
-        ] {
+        let html = self.html(&mut |file| data_uri(&dir.join(file)))?;
+        for (name, text) in [("report.md", self.to_markdown()), ("report.html", html)] {
             let p = dir.join(name);
             write_atomic(&p, text.as_bytes())?;
             written.push(p);
         }
         Ok(written)
     }
+}
+
+/// The file at `path` as a `data:` URI (PNG, JPEG or SVG by its extension); an error naming
+/// the file when it cannot be read.
+fn data_uri(path: &Path) -> std::io::Result<String> {
+    use base64::Engine as _;
+    let mime = match path.extension().and_then(|e| e.to_str()) {
+        Some("png") => "image/png",
+        Some("jpg" | "jpeg") => "image/jpeg",
+        Some("svg") => "image/svg+xml",
+        _ => "application/octet-stream",
+    };
+    let bytes = std::fs::read(path).map_err(|e| {
+        std::io::Error::new(
+            e.kind(),
+            format!("embedding {} in the report: {e}", path.display()),
+        )
+    })?;
+    Ok(format!(
+        "data:{mime};base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(bytes)
+    ))
 }
 
 #[cfg(test)]
@@ -259,6 +290,25 @@ mod tests {
         let files = r.write(&dir).unwrap();
         assert_eq!(files.len(), 3);
         assert!(dir.join("ate.svg").is_file() && dir.join("report.html").is_file());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn written_pages_embed_their_images_and_a_missing_one_is_an_error() {
+        let dir = std::env::temp_dir().join(format!("stride-report-img-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("map.png"), b"\x89PNG bytes").unwrap();
+        let mut r = Report::new("map");
+        r.image("map.png", "the map");
+        r.write(&dir).unwrap();
+        let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+        assert!(
+            html.contains("src=\"data:image/png;base64,iVBORyBieXRlcw==\""),
+            "{html}"
+        );
+        r.image("gone.png", "not there");
+        let err = r.write(&dir).unwrap_err();
+        assert!(err.to_string().contains("gone.png"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

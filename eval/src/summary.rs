@@ -96,6 +96,7 @@ impl AteResult {
                 points: self.est_positions.iter().map(|p| (p.x, p.y)).collect(),
                 values: self.errors_m.clone(),
             }),
+            raster: None,
             equal_aspect: true,
             y_from_zero: false,
         };
@@ -127,6 +128,7 @@ impl AteResult {
                 .with_style(Style::Dashed),
             ],
             colored: None,
+            raster: None,
             equal_aspect: false,
             y_from_zero: true,
         };
@@ -232,6 +234,7 @@ impl RpeResult {
                     self.pairs.iter().map(|p| (p.t_s - t0, f(p))).collect(),
                 )],
                 colored: None,
+                raster: None,
                 equal_aspect: false,
                 y_from_zero: true,
             };
