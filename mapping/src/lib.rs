@@ -149,6 +149,54 @@ impl MapLayers {
         layers
     }
 
+    /// Every cell with a height: `(world cell (row, col), height, variance, vitality,
+    /// updates)`, the world cell being the cell's centre over the resolution.
+    pub fn known_cells(&self) -> impl Iterator<Item = ((i64, i64), f32, f32, f32, f32)> + '_ {
+        let g = self.elevation.geometry;
+        let (r0, c0) = (
+            (g.origin_y / g.resolution).round() as i64,
+            (g.origin_x / g.resolution).round() as i64,
+        );
+        let layers = [&self.variance, &self.vitality, &self.updates];
+        self.elevation
+            .as_slice()
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| !h.is_nan())
+            .map(move |(i, &h)| {
+                let [var, vit, upd] =
+                    layers.map(|l| l.as_slice().get(i).copied().unwrap_or(f32::NAN));
+                let (row, col) = ((i / g.cols.max(1)) as i64, (i % g.cols.max(1)) as i64);
+                ((r0 + row, c0 + col), h, var, vit, upd)
+            })
+    }
+
+    /// These layers with `top` laid over them: a cell has `top`'s values where `top` knows
+    /// its height and these elsewhere, over the bounding box of both. Errors when the
+    /// resolutions differ.
+    pub fn overlaid(&self, top: &MapLayers) -> Result<MapLayers, MappingError> {
+        let res = self.elevation.geometry.resolution;
+        let top_res = top.elevation.geometry.resolution;
+        if (res - top_res).abs() > 1e-9 * res.abs() {
+            return Err(MappingError::Parameter {
+                name: "resolution_m",
+                value: top_res,
+                reason: "layers laid over each other must have the same resolution",
+            });
+        }
+        let mut cells: std::collections::BTreeMap<(i64, i64), (f32, f32, f32, f32)> = self
+            .known_cells()
+            .map(|(k, h, v, vi, u)| (k, (h, v, vi, u)))
+            .collect();
+        for (k, h, v, vi, u) in top.known_cells() {
+            cells.insert(k, (h, v, vi, u));
+        }
+        Ok(MapLayers::from_cells(
+            res,
+            cells.iter().map(|(&k, &(h, v, vi, u))| (k, h, v, vi, u)),
+        ))
+    }
+
     /// Number of cells with a height.
     pub fn cells_observed(&self) -> usize {
         self.elevation
