@@ -7,4 +7,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup.sh
-cargo run --release --locked --quiet --bin stride -- demo --out out/demo "$@"
+cargo run --release --locked --quiet --bin stride -- demo --out out/demo --overwrite "$@"

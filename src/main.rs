@@ -3,7 +3,6 @@
 //! The binary wires the library crates together; see `stride --help`.
 
 mod cli;
-mod pipeline;
 
 use clap::Parser;
 

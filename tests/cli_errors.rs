@@ -98,6 +98,55 @@ fn outputs_and_ranges_are_checked_before_the_work() {
 }
 
 #[test]
+fn an_output_folder_with_contents_is_refused_unless_overwritten() {
+    let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let teddy = teddy.to_str().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("earlier");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("keep.txt"), "an earlier result").unwrap();
+    let o = out.to_str().unwrap();
+    let gt = format!("{teddy}/groundtruth.txt");
+    for args in [
+        vec!["run", "--dataset", teddy, "--out", o, "--max-frames", "3"],
+        vec!["map", "--dataset", teddy, "--out", o, "--max-frames", "3"],
+        vec!["demo", "--out", o, "--frames", "3"],
+        vec!["eval", "ate", &gt, &gt, "--report", o],
+    ] {
+        let flag = if args[0] == "eval" {
+            "--report"
+        } else {
+            "--out"
+        };
+        let err = fails(&args);
+        assert!(
+            err.contains(&format!("{flag} {o}: the folder exists and is not empty"))
+                && err.contains("--overwrite"),
+            "{args:?}: {err}"
+        );
+        assert_eq!(
+            std::fs::read_to_string(out.join("keep.txt")).unwrap(),
+            "an earlier result"
+        );
+    }
+    // With --overwrite the folder is replaced whole by the new result.
+    common::run_ok(&[
+        "run",
+        "--dataset",
+        teddy,
+        "--out",
+        o,
+        "--overwrite",
+        "--vo-only",
+        "--max-frames",
+        "5",
+    ]);
+    assert!(!out.join("keep.txt").exists() && out.join("trajectory.tum").is_file());
+}
+
+#[test]
 fn the_camera_is_reported_by_name_not_as_a_debug_string() {
     let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
         return;

@@ -27,45 +27,57 @@ fn demo_renders_tracks_maps_and_reports() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["slam"]["frames_tracked"], 30, "{r}");
     assert!(num(&r["slam"], "ate_rmse_m") < 0.01, "{r}");
-    let (ours, base) = (
-        &r["map_groundtruth_poses"]["stack"],
-        &r["map_groundtruth_poses"]["fankhauser"],
+    // The pipeline's map (SLAM poses) against the same views at ground-truth poses: the
+    // SLAM costs the map at most 10 % of its error, at the same coverage.
+    let (slam, gt) = (
+        &r["map"]["slam_poses"],
+        &r["map"]["groundtruth_poses_views"],
     );
-    assert!(num(ours, "mse") < num(base, "mse"), "{r}");
+    assert!(num(slam, "rmse_m") < 1.1 * num(gt, "rmse_m"), "{r}");
+    assert!(num(slam, "coverage") > 0.95 * num(gt, "coverage"), "{r}");
+    assert_eq!(slam["phantoms"], 0, "{r}");
+    // Every frame at ground-truth poses: ours beats the baseline.
+    let every = &r["map"]["groundtruth_poses_every_frame"];
+    let (ours, base) = (&every["stack"], &every["fankhauser"]);
+    assert!(num(ours, "mean_abs_m") < num(base, "mean_abs_m"), "{r}");
     assert_eq!(ours["phantoms"], 0, "{r}");
-    assert!(
-        num(&r["map_slam_poses"]["stack"], "mse") < num(base, "mse"),
-        "{r}"
-    );
+    // The page is self-contained: its images are embedded, none is linked.
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("src=\"data:image/png;base64,"));
+    assert!(html.contains("src=\"data:image/svg+xml;base64,"));
+    assert!(!html.contains("src=\"sequence/"));
     for part in [
-        "trajectory",
-        "sequence/terrain.png",
-        "map_groundtruth/stack/elevation.png",
-        "map_slam/elevation.png",
-        "sequence/blur.svg",
+        "Trajectory from above",
+        "Pipeline map (SLAM poses)",
+        "height (m)",
     ] {
         assert!(html.contains(part), "{part}");
     }
     for file in [
         "sequence/terrain.png",
-        "sequence/blur.svg",
-        "map_groundtruth/stack/elevation.png",
-        "map_slam/elevation.png",
-        "slam/trajectory_world.tum",
+        "slam/map/elevation.npy",
+        "slam/report.html",
+        "map_groundtruth/stack/elevation.npy",
+        "map_views_groundtruth/elevation.npy",
         "trajectory.svg",
     ] {
         assert!(out.join(file).is_file(), "{file}");
     }
-    // A second run replaces the first instead of failing on the existing folders.
-    let o = run(&[
-        "demo",
-        "--out",
-        out.to_str().unwrap(),
-        "--frames",
-        "12",
-        "--no-blur",
-        "-q",
-    ]);
+    // A second run replaces the first with --overwrite, and is refused without it.
+    let again = |extra: &[&str]| {
+        let mut args = vec![
+            "demo",
+            "--out",
+            out.to_str().unwrap(),
+            "--frames",
+            "12",
+            "--no-blur",
+            "-q",
+        ];
+        args.extend(extra);
+        run(&args)
+    };
+    assert!(!again(&[]).status.success());
+    let o = again(&["--overwrite"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

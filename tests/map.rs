@@ -116,8 +116,8 @@ fn teddy_floor_is_flat_within_a_few_centimetres() {
     assert!(num(&r, "cells_observed") > 50_000.0);
     let html = std::fs::read_to_string(tmp.path().join("report.html")).unwrap();
     assert!(
-        html.contains("elevation.png") && html.contains("Floor:"),
-        "the preview and the floor fit are in the report"
+        html.contains("data:image/png;base64,") && html.contains("Floor:"),
+        "the preview (embedded) and the floor fit are in the report"
     );
 }
 
@@ -198,11 +198,18 @@ fn bad_pose_files_fail_cleanly_and_frames_outside_the_poses_are_counted() {
         later_path.to_str().unwrap(),
         "--out",
         half_dir.to_str().unwrap(),
+        "--overwrite",
         "--max-frames",
         "12",
     ]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("no frame could be mapped"), "{err}");
+    // Both time spans, so that the user sees how they miss each other.
+    assert!(
+        err.contains(&format!("poses {}: ", later_path.display()))
+            && err.contains("depth images: "),
+        "{err}"
+    );
     assert_eq!(std::fs::read(half_dir.join("report.json")).unwrap(), before);
 }

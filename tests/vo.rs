@@ -194,12 +194,13 @@ fn missing_corrupt_wrong_size_and_empty_depth_frames_are_counted_not_fatal() {
 
 #[test]
 fn a_missing_dataset_or_camera_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
     let out = run(&[
         "run",
         "--dataset",
         "/nonexistent/seq",
         "--out",
-        "/tmp/x",
+        tmp.path().join("x").to_str().unwrap(),
         "--vo-only",
     ]);
     assert!(!out.status.success());

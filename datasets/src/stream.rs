@@ -30,12 +30,14 @@ pub struct FrameFailure {
 }
 
 /// What a [`FrameStream`] yields in place of a frame.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum StreamError {
     /// One frame could not be loaded; the stream goes on with the next one.
+    #[error("frame {}: {}", .0.index, .0.error)]
     Frame(FrameFailure),
     /// The decoder thread could not start, or stopped before the last frame (a panic): the
     /// stream ends here, and the run should fail.
+    #[error("{0}")]
     Stopped(DatasetError),
 }
 

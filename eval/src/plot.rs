@@ -543,7 +543,11 @@ mod tests {
     #[test]
     fn a_raster_is_embedded_on_its_extent_with_its_own_colour_bar() {
         let chart = Chart {
-            series: vec![Series::line("path", PALETTE[1], vec![(0.5, 0.5), (1.0, 1.0)])],
+            series: vec![Series::line(
+                "path",
+                PALETTE[1],
+                vec![(0.5, 0.5), (1.0, 1.0)],
+            )],
             raster: Some(Raster {
                 label: "height (m)".into(),
                 png: b"png".to_vec(),

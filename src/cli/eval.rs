@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_eval::report::Report;
 use stride_eval::{ate, rpe, Align, AteOptions, DeltaUnit, EvalError, Preset, RpeOptions};
-use stride_output::fs::write_atomic;
+use stride_output::fs::{write_atomic, StagedDir};
 
 #[derive(Debug, Subcommand)]
 pub enum EvalCommand {
@@ -55,9 +55,13 @@ pub struct CommonArgs {
     /// Write the plots as SVG to this file (it must end in .svg).
     #[arg(long, value_name = "FILE.svg")]
     plot: Option<PathBuf>,
-    /// Write report.md, report.html and the plots into this folder.
+    /// Write report.md, report.html and the plots into this folder (an existing non-empty
+    /// one only with --overwrite).
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
+    /// Replace the --report folder's contents.
+    #[arg(long, requires = "report")]
+    overwrite: bool,
     #[command(flatten)]
     limits: Limits,
 }
@@ -121,7 +125,7 @@ impl CommonArgs {
             }
         }
         match &self.report {
-            Some(d) => crate::cli::check_out_dir("--report", d),
+            Some(d) => crate::cli::check_out_dir("--report", d, self.overwrite),
             None => Ok(()),
         }
     }
@@ -173,10 +177,15 @@ fn emit(
         ));
         fill_report(&mut report);
         report.code(std::env::args().collect::<Vec<_>>().join(" "));
-        write_report_json(dir, &json)?;
+        // Staged and published whole, as every command's output folder.
+        let staged = StagedDir::new(dir).with_context(|| format!("creating {}", dir.display()))?;
+        write_report_json(staged.path(), &json)?;
         report
-            .write(dir)
+            .write(staged.path())
             .with_context(|| format!("writing the report into {}", dir.display()))?;
+        staged
+            .publish()
+            .with_context(|| format!("publishing {}", dir.display()))?;
         tracing::info!("report written to {}", dir.join("report.html").display());
     }
     Ok(())

@@ -5,20 +5,15 @@ use clap::{Args, ValueEnum};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
-use stride_core::grid::Grid;
+use stride::known_poses::{map_sequence, FrameCounts, MapperRun};
 use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
-use stride_datasets::stream::StreamError;
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
-use stride_mapping::input::{Rejections, SensorFrame};
-use stride_mapping::metrics::{
-    compare, floor_fit, performance_index, phantoms, FloorFit, MapScore, PhantomScore,
-};
-use stride_mapping::post::MedianStats;
+use stride_mapping::metrics::performance_index;
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers, MappingError};
 use stride_output::fs::{write_atomic, StagedDir};
@@ -42,9 +37,12 @@ pub struct MapArgs {
     /// `world_from_camera` with the world's z axis up.
     #[arg(long, default_value = "groundtruth")]
     pub poses: String,
-    /// Output folder.
+    /// Output folder (created if missing; an existing non-empty one only with --overwrite).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the output folder's contents.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Camera: fr1, fr2, fr3 or a camera file [default: from the folder].
     #[arg(long)]
     pub camera: Option<String>,
@@ -89,30 +87,6 @@ pub struct MapArgs {
     /// Write the stack map without the median filter (hole filling, isolated-cell removal).
     #[arg(long)]
     pub no_median_filter: bool,
-}
-
-/// A mapper's results over the sequence.
-pub struct MapperRun {
-    /// Its name.
-    pub name: &'static str,
-    /// Its layers (stack: after the median fill).
-    pub layers: MapLayers,
-    /// Update time per frame (s).
-    pub update_s: Vec<f64>,
-    /// Points used.
-    pub points_used: usize,
-    /// Dropped measurements.
-    pub rejected: Rejections,
-    /// Columns cleared by the visibility check.
-    pub cells_cleared: usize,
-    /// What the median filter changed (stack mapper only).
-    pub median: MedianStats,
-    /// Comparison with ground truth.
-    pub score: Option<MapScore>,
-    /// Phantom obstacles over flat ground truth.
-    pub phantoms: Option<PhantomScore>,
-    /// The floor's plane fit.
-    pub floor: Option<FloorFit>,
 }
 
 /// Perturbs a trajectory with a seeded random-walk drift: translation error growing by
@@ -180,100 +154,9 @@ fn make_mappers(a: &MapArgs) -> Result<Vec<Box<dyn ElevationMapper>>> {
     Ok(mappers)
 }
 
-/// Cells within this height of the floor plane (m) count as floor in the flatness fit.
-pub const FLOOR_BAND_M: f64 = 0.10;
-
-/// Phantom obstacles: cells more than 2 cm above ground truth that is flat (within 1 cm)
-/// over 5 cm around.
-pub fn phantom_score(map: &Grid<f32>, gt: &Grid<f32>) -> PhantomScore {
-    phantoms(map, gt, 0.05, 0.01, 0.02)
-}
-
-/// Frames mapped and skipped.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct FrameCounts {
-    /// Frames in the sequence (up to --max-frames).
-    pub frames: usize,
-    /// Frames integrated.
-    pub mapped: usize,
-    /// Frames outside the poses' time span.
-    pub no_pose: usize,
-    /// Frames that could not be loaded.
-    pub unreadable: usize,
-}
-
-/// Maps a sequence with the given poses into each mapper; returns per-mapper runs, each
-/// map as its mapper finishes it (the stack map's median fill per its configuration).
-pub fn map_sequence(
-    seq: &TumSequence,
-    poses: &Trajectory,
-    mut mappers: Vec<Box<dyn ElevationMapper>>,
-    max_frames: Option<usize>,
-    gt: Option<&Grid<f32>>,
-) -> Result<(Vec<MapperRun>, FrameCounts)> {
-    let stream = seq.stream(max_frames, 4);
-    let pb = crate::pipeline::progress_bar(stream.len(), "mapping", true);
-    let mut counts = FrameCounts::default();
-    let mut stats: Vec<(Vec<f64>, usize, Rejections, usize)> = mappers
-        .iter()
-        .map(|_| (Vec::new(), 0, Rejections::default(), 0))
-        .collect();
-    for item in stream {
-        counts.frames += 1;
-        pb.inc(1);
-        let decoded = match item {
-            Ok(d) => d,
-            Err(StreamError::Frame(f)) => {
-                tracing::warn!("frame {} skipped: {}", f.index, f.error);
-                counts.unreadable += 1;
-                continue;
-            }
-            Err(StreamError::Stopped(e)) => return Err(e.into()),
-        };
-        let frame = &decoded.frame;
-        let Some(pose) = poses.interpolate(frame.t_depth_s) else {
-            counts.no_pose += 1;
-            continue;
-        };
-        counts.mapped += 1;
-        let sf = SensorFrame::depth(&frame.depth_m, &seq.camera.camera, pose, frame.t_depth_s)
-            .with_context(|| format!("frame {} of {}", frame.index, seq.dir.display()))?;
-        for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
-            let u = m.integrate(&sf);
-            s.0.push(u.update_s);
-            s.1 += u.points_used;
-            s.2.add(&u.rejected);
-            s.3 += u.cells_cleared;
-        }
-    }
-    pb.finish_and_clear();
-    let mut runs = Vec::new();
-    for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
-        // The mapper's own post-processing (the stack map's median fill; none for the
-        // baseline).
-        let (layers, median) = m.finished();
-        let score = gt.and_then(|g| compare(&layers.elevation, g));
-        let phantoms = gt.map(|g| phantom_score(&layers.elevation, g));
-        let floor = floor_fit(&layers.elevation, FLOOR_BAND_M);
-        runs.push(MapperRun {
-            name: m.name(),
-            layers,
-            update_s,
-            points_used,
-            rejected,
-            cells_cleared,
-            median,
-            score,
-            phantoms,
-            floor,
-        });
-    }
-    Ok((runs, counts))
-}
-
 /// The report object of one mapper.
 pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
-    let (med, p95) = crate::pipeline::median_p95(r.update_s.iter().copied());
+    let (med, p95) = stride::pipeline::median_p95(r.update_s.iter().copied());
     let total_s: f64 = r.update_s.iter().sum();
     let mut m = Map::new();
     m.insert("mapper".into(), json!(r.name));
@@ -369,7 +252,7 @@ pub fn run(a: MapArgs) -> Result<()> {
 /// Maps the sequence and writes everything into `a.out`; returns the report.json object,
 /// the runs and the frame counts.
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
-    crate::cli::check_out_dir("--out", &a.out)?;
+    crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let mappers = make_mappers(a).with_context(|| {
         format!(
             "--resolution {} and --size {} give no valid map",
@@ -408,14 +291,30 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
     };
-    let (runs, counts) = map_sequence(&seq, &poses, mappers, a.max_frames, gt.as_ref())?;
+    let pb = crate::cli::progress_bar(
+        a.max_frames.map_or(seq.len(), |m| m.min(seq.len())),
+        "mapping",
+        true,
+    );
+    let (runs, counts) = map_sequence(&seq, &poses, mappers, a.max_frames, gt.as_ref(), || {
+        pb.inc(1)
+    })?;
+    pb.finish_and_clear();
     if counts.mapped == 0 {
+        let span = |t: &[f64]| match (t.first(), t.last()) {
+            (Some(a), Some(b)) => format!("{a:.3} to {b:.3} s"),
+            _ => "empty".to_owned(),
+        };
+        let images: Vec<f64> = seq.frames.iter().map(|f| f.t_depth_s).collect();
         anyhow::bail!(
             "no frame could be mapped, nothing written: of {} frames, {} lie outside the poses' \
-             time span and {} could not be read",
+             time span and {} could not be read (poses {}: {}; depth images: {})",
             counts.frames,
             counts.no_pose,
-            counts.unreadable
+            counts.unreadable,
+            a.poses,
+            span(poses.stamps_s()),
+            span(&images)
         );
     }
     // Written into a staging folder published at the end: a killed run leaves the previous

@@ -5,7 +5,9 @@ mod demo;
 mod eval;
 pub mod gates;
 mod map;
+mod map_figures;
 mod run;
+mod run_files;
 mod run_report;
 mod synth;
 
@@ -56,12 +58,37 @@ macro_rules! outln {
 }
 
 /// Fails at once, before any work, when an output folder given as `flag` exists as
-/// something other than a folder.
-pub fn check_out_dir(flag: &str, dir: &std::path::Path) -> Result<()> {
+/// something other than a folder, or as a folder with contents and `overwrite` is false:
+/// results are never mixed with, or silently replace, an earlier run's.
+pub fn check_out_dir(flag: &str, dir: &std::path::Path, overwrite: bool) -> Result<()> {
     if dir.exists() && !dir.is_dir() {
         anyhow::bail!("{flag} {}: exists and is not a folder", dir.display());
     }
+    let non_empty = std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_some());
+    if non_empty && !overwrite {
+        anyhow::bail!(
+            "{flag} {}: the folder exists and is not empty; pass --overwrite to replace it",
+            dir.display()
+        );
+    }
     Ok(())
+}
+
+/// A progress bar on stderr labelled `what` (hidden when `show` is false): the one style of
+/// every long command.
+pub fn progress_bar(total: usize, what: &str, show: bool) -> indicatif::ProgressBar {
+    use indicatif::{ProgressBar, ProgressStyle};
+    if !show {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(total as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_owned());
+    pb
 }
 
 /// Logs go to stderr so that stdout carries only results (tables or JSON).

@@ -1,10 +1,13 @@
 //! The HTML report of `stride run`.
 
+use super::map_figures;
 use super::run::RunArgs;
-use crate::pipeline::{BackendSummary, FrameStatus, RunOutput};
 use anyhow::{Context, Result};
 use serde_json::Value;
 use std::path::Path;
+use stride::pipeline::{BackendSummary, FrameStatus, RunOutput};
+use stride::MapOutput;
+use stride_core::grid::Grid;
 use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
 use stride_eval::report::Report;
 use stride_eval::{AteResult, RpeResult};
@@ -44,14 +47,83 @@ fn map_chart(out: &RunOutput, b: &BackendSummary) -> Chart {
     }
 }
 
-pub fn write_html(
-    dir: &Path,
-    a: &RunArgs,
+/// What the run page shows.
+pub struct RunPage<'a> {
+    /// The command's arguments.
+    pub args: &'a RunArgs,
+    /// report.json's object.
+    pub json: &'a Value,
+    /// The SLAM's output.
+    pub out: &'a RunOutput,
+    /// The elevation map, when there is one.
+    pub map: Option<&'a MapOutput>,
+    /// The true terrain, when the folder has one.
+    pub terrain: Option<&'a Grid<f32>>,
+    /// ATE against ground truth.
+    pub ate: Option<&'a AteResult>,
+    /// RPE against ground truth.
+    pub rpe: Option<&'a RpeResult>,
+}
+
+/// Writes report.html (self-contained) and report.md into `dir`.
+/// The elevation map: its figures and numbers.
+fn map_section(
+    rep: &mut Report,
     j: &Value,
     out: &RunOutput,
-    at: Option<&AteResult>,
-    rp: Option<&RpeResult>,
+    m: &MapOutput,
+    terrain: Option<&Grid<f32>>,
 ) -> Result<()> {
+    let path: Vec<(f64, f64)> = out
+        .final_poses()
+        .iter()
+        .map(|p| (p.translation.x, p.translation.y))
+        .collect();
+    let jm = &j["map"];
+    rep.heading("Elevation map");
+    rep.paragraph(format!(
+        "Built inside the pipeline from {} views (a frame's depth every few frames and at keyframes, each tied to its keyframe) at their optimized poses ({} rebuilds when the back end moved keyframes; {} views settled), in the world frame (z up). {} cells known; floor: {}.",
+        jm["views"],
+        jm["rebuilds"],
+        jm["views_settled"],
+        jm["cells_observed"],
+        match jm["floor"].as_object() {
+            Some(f) => format!(
+                "tilted {:.2} deg from the world's x-y plane, heights about it std {:.1} mm",
+                f.get("tilt_deg").and_then(Value::as_f64).unwrap_or(f64::NAN),
+                1e3 * f.get("residual_std_m").and_then(Value::as_f64).unwrap_or(f64::NAN)
+            ),
+            None => "none found".into(),
+        }
+    ));
+    let mut charts = vec![map_figures::elevation_chart(
+        "Elevation map from above",
+        &m.layers.elevation,
+        &path,
+    )?];
+    if let Some(t) = terrain {
+        charts.extend(map_figures::error_chart(&m.layers.elevation, t, &path)?);
+        let sc = &jm["against_true_terrain"];
+        rep.paragraph(format!(
+            "Against the true terrain: RMSE {:.1} mm, mean {:.1} mm, 95th percentile {:.1} mm over {} cells; coverage {:.2}.",
+            1e3 * sc["rmse"].as_f64().unwrap_or(f64::NAN),
+            1e3 * sc["mean_abs"].as_f64().unwrap_or(f64::NAN),
+            1e3 * sc["p95_abs"].as_f64().unwrap_or(f64::NAN),
+            sc["cells_compared"],
+            sc["coverage"].as_f64().unwrap_or(f64::NAN)
+        ));
+    }
+    let n = charts.len();
+    rep.figure(
+        "elevation",
+        render(&charts, n, 540.0, 470.0),
+        "The elevation map (colour relief, height in metres) with the camera's path; the error map, where the true terrain is known. Grey: unknown.",
+    );
+    Ok(())
+}
+
+pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
+    let (a, j, out, at, rp) = (page.args, page.json, page.out, page.ate, page.rpe);
     let mut rep = Report::new(format!("stride run: {}", backend_title(j)));
     rep.paragraph(format!(
         "Dataset {}; {} frames; seed {}. World frame: {}.",
@@ -119,6 +191,9 @@ pub fn write_html(
             render(&[map_chart(out, b)], 1, 640.0, 480.0),
             "The final map's points and the trajectory, seen from above (the world's x-y plane, z up).",
         );
+    }
+    if let Some(m) = page.map {
+        map_section(&mut rep, j, out, m, page.terrain)?;
     }
     let stages = ["decode", "detect", "track", "ransac", "refine", "total"];
     rep.table(
@@ -214,6 +289,18 @@ pub fn write_html(
         },
     ];
     rep.figure("tracking", render(&per_frame, 2, 560.0, 360.0), "Left: keypoints tracked and RANSAC inliers per frame, failures marked. Right: processing time per frame.");
+    rep.heading("Configuration");
+    let config: serde_json::Map<String, Value> = [
+        "seed",
+        "backend",
+        "schedule",
+        "backend_config",
+        "world_frame",
+    ]
+    .iter()
+    .filter_map(|k| Some(((*k).to_owned(), j.get(*k)?.clone())))
+    .collect();
+    rep.code(serde_json::to_string_pretty(&config)?);
     rep.write(dir)
         .with_context(|| format!("writing the report into {}", dir.display()))?;
     Ok(())

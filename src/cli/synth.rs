@@ -191,7 +191,7 @@ impl SynthArgs {
 
 /// Generates a sequence with a progress bar; returns its summary.
 pub fn synthesize(config: &SynthConfig, out: &Path, overwrite: bool) -> Result<SynthSummary> {
-    let pb = crate::pipeline::progress_bar(config.frames, "rendering", true);
+    let pb = crate::cli::progress_bar(config.frames, "rendering", true);
     let summary = match generate(config, out, overwrite, &mut |done, _| {
         pb.set_position(done as u64)
     }) {
@@ -207,10 +207,10 @@ pub fn synthesize(config: &SynthConfig, out: &Path, overwrite: bool) -> Result<S
 }
 
 pub fn run(a: SynthArgs) -> Result<()> {
-    crate::cli::check_out_dir("--out", &a.out)?;
+    crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let config = a.config()?;
     let summary = synthesize(&config, &a.out, a.overwrite)?;
-    let median = crate::pipeline::median_p95(summary.render_s.iter().copied()).0;
+    let median = stride::pipeline::median_p95(summary.render_s.iter().copied()).0;
     crate::outln!(
         "{} frames in {:.1} s: rendering {:.1} ms/frame median ({:.1} frames/s{}), gait cycle {:.2} Hz, steps {:.2} Hz",
         summary.frames.len(),
@@ -282,7 +282,7 @@ pub fn blur_report(summary: &SynthSummary, fps: f64) -> Result<String> {
     let svg = render(&charts, 2, 560.0, 360.0);
     let text = format!(
         "sharpness median {:.1}; dominant frequency {} (gait steps at {:.2} Hz); correlation with image motion {}",
-        crate::pipeline::median_p95(sharp.iter().copied()).0,
+        stride::pipeline::median_p95(sharp.iter().copied()).0,
         dom.map_or("-".into(), |f| format!("{f:.2} Hz")),
         summary.step_hz,
         corr.map_or("-".into(), |c| format!("{c:.2}"))

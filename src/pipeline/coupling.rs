@@ -2,7 +2,7 @@
 //! schedule.
 
 use super::output::BackendSummary;
-use anyhow::{Context, Result};
+use super::PipelineError;
 use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -23,6 +23,12 @@ pub enum Schedule {
     Free,
 }
 
+impl Schedule {
+    /// Frames between a keyframe and the application of its correction under the default
+    /// fixed schedule: time for the local optimization while the odometry goes on.
+    pub const DEFAULT_LAG_FRAMES: usize = 3;
+}
+
 /// The back end beside the odometry, and the keyframes whose corrections are due.
 pub(crate) struct Coupling {
     /// The back end's configuration, for the report.
@@ -34,30 +40,37 @@ pub(crate) struct Coupling {
     /// `optimized_from_odometry` implied by the latest answer.
     pub(crate) correction: Isometry3<f64>,
     pub(crate) reports: Vec<KeyframeReport>,
+    /// Poses answered since the caller last took them ([`Coupling::take_answers`]):
+    /// each answer's window of keyframes, `world_from_camera` in the SLAM's frame.
+    pub(crate) answers: Vec<(u64, Isometry3<f64>)>,
 }
 
 impl Coupling {
     /// Takes the back end's answer for the oldest keyframe sent.
-    fn absorb(&mut self, u: KeyframeUpdate) -> Result<()> {
-        let Some((id, _, odometry_pose)) = self.queue.pop_front() else {
-            anyhow::bail!(
-                "the back end answered keyframe {} that was never sent",
-                u.keyframe_id
-            );
+    fn absorb(&mut self, u: KeyframeUpdate) -> Result<(), PipelineError> {
+        let due = self.queue.pop_front();
+        let Some((id, _, odometry_pose)) = due.filter(|d| d.0 == u.keyframe_id) else {
+            return Err(PipelineError::BackendOrder {
+                answered: u.keyframe_id,
+                expected: due.map(|d| d.0),
+            });
         };
-        anyhow::ensure!(
-            id == u.keyframe_id,
-            "the back end answered keyframe {} where {id} was due",
-            u.keyframe_id
-        );
         self.correction = u.correction(&odometry_pose);
+        self.answers.push((id, u.world_from_keyframe));
+        self.answers.extend(u.window_poses);
         self.reports.push(u.report);
         Ok(())
     }
 
+    /// The poses answered since the last call, in the order they were answered (a later
+    /// one of the same keyframe supersedes an earlier one).
+    pub(crate) fn take_answers(&mut self) -> Vec<(u64, Isometry3<f64>)> {
+        std::mem::take(&mut self.answers)
+    }
+
     /// Takes the answers due before the frame at `position` (waiting for them under the
     /// fixed schedule). Returns the time waited (s).
-    pub(crate) fn take_due(&mut self, position: usize) -> Result<f64> {
+    pub(crate) fn take_due(&mut self, position: usize) -> Result<f64, PipelineError> {
         let mut waited = 0.0;
         match self.schedule {
             Schedule::Fixed { lag_frames } => {
@@ -83,10 +96,10 @@ impl Coupling {
 }
 
 /// Waits for the back end, runs its final optimization and collects its results.
-pub(crate) fn finish_backend(c: Coupling) -> Result<BackendSummary> {
+pub(crate) fn finish_backend(c: Coupling) -> Result<BackendSummary, PipelineError> {
     let config = c.config;
     let mut reports = c.reports;
-    let finished = c.thread.finish().context("finishing the back end")?;
+    let finished = c.thread.finish()?;
     reports.extend(finished.late_updates.into_iter().map(|u| u.report));
     let map = finished.backend.map();
     let ids = map.keyframes().keys().chain(map.culled().keys());

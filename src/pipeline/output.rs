@@ -1,7 +1,7 @@
 //! What a run produced: a record per frame, the back end's summary, and the final poses.
 
 use crate::pipeline::world::WorldFrame;
-use anyhow::{Context, Result};
+use crate::pipeline::PipelineError;
 use nalgebra::Isometry3;
 use stride_backend::{BackendConfig, KeyframeReport};
 use stride_core::trajectory::Trajectory;
@@ -199,21 +199,28 @@ impl RunOutput {
     }
 
     /// The estimated trajectory (every frame, final poses).
-    pub fn trajectory(&self) -> Result<Trajectory> {
+    pub fn trajectory(&self) -> Result<Trajectory, PipelineError> {
         self.trajectory_of(self.final_poses())
     }
 
     /// The trajectory as it was known frame by frame (live poses).
-    pub fn live_trajectory(&self) -> Result<Trajectory> {
+    pub fn live_trajectory(&self) -> Result<Trajectory, PipelineError> {
         self.trajectory_of(self.frames.iter().map(|f| f.live_world_from_camera))
     }
 
     /// The frames' times with `poses`, one per frame in order.
-    fn trajectory_of(&self, poses: impl IntoIterator<Item = Isometry3<f64>>) -> Result<Trajectory> {
+    fn trajectory_of(
+        &self,
+        poses: impl IntoIterator<Item = Isometry3<f64>>,
+    ) -> Result<Trajectory, PipelineError> {
         let mut t = Trajectory::new();
         for (f, p) in self.frames.iter().zip(poses) {
             t.push(f.t_s, p)
-                .with_context(|| format!("frame {} at {:.6} s", f.index, f.t_s))?;
+                .map_err(|source| PipelineError::Trajectory {
+                    index: f.index,
+                    t_s: f.t_s,
+                    source,
+                })?;
         }
         Ok(t)
     }

@@ -1,6 +1,6 @@
 //! The SLAM over a sequence, one frame at a time: the visual odometry on the caller's
-//! thread, the back end in a thread of its own ([`coupling`]), a record per frame
-//! ([`output`]).
+//! thread, the back end in a thread of its own (`pipeline::coupling`), a record per frame
+//! ([`super::FrameRecord`]).
 //!
 //! Per frame, in order:
 //! 1. take the back end's answers that are due (the correction of live poses);
@@ -13,21 +13,13 @@
 //! from its keyframes' final poses ([`RunOutput::final_poses`]).
 //!
 //! The odometry and the back end work in the frame of the first camera; the outputs are
-//! in the gravity-aligned world ([`world`]), found from the floor in the first frames (or
-//! a given mounting).
+//! in the gravity-aligned world ([`super::world`]), found from the floor in the first
+//! frames (or a given mounting).
 
-mod coupling;
-mod output;
-mod stats;
-pub mod world;
-
-pub use coupling::Schedule;
-pub use output::{BackendSummary, FrameRecord, FrameStatus, RunOutput};
-pub use stats::{median_p95, slam_ate_options};
-
-use anyhow::{Context, Result};
-use coupling::{finish_backend, Coupling};
-use indicatif::{ProgressBar, ProgressStyle};
+use super::coupling::{finish_backend, Coupling, Schedule};
+use super::output::{FrameRecord, FrameStatus, RunOutput};
+use super::world::{self, floor_in_camera, WorldFrame, WorldPlan};
+use super::PipelineError;
 use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -35,10 +27,7 @@ use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
 use stride_core::frame::RgbdFrame;
 use stride_core::plane::Plane;
 use stride_datasets::camera_config::CameraConfig;
-use stride_datasets::stream::StreamError;
-use stride_datasets::tum::TumSequence;
 use stride_frontend::{StageTimes, TrackingStatus, VisualOdometry, VoConfig};
-use world::{floor_in_camera, WorldFrame, WorldPlan};
 
 /// The SLAM, fed one frame at a time.
 pub struct Slam {
@@ -47,6 +36,8 @@ pub struct Slam {
     /// The world frame when it is given (a mounting); otherwise made at the end from
     /// `floors`.
     world: Option<WorldFrame>,
+    /// The reference trajectory that gives the world, when one does.
+    reference: Option<stride_core::trajectory::Trajectory>,
     /// Floors seen (camera coordinates) and their inlier counts, by frame position: the
     /// world frame is made of them at the end, with the frames' final poses.
     floors: Vec<(usize, Plane, usize)>,
@@ -64,13 +55,13 @@ impl Slam {
         camera: &CameraConfig,
         config: VoConfig,
         backend: Option<(BackendConfig, Schedule)>,
-    ) -> Result<Self> {
+    ) -> Result<Self, PipelineError> {
         let config = VoConfig {
             rolling_shutter_s: camera.rolling_shutter_s,
             ..config
         };
         let camera = camera.camera;
-        let vo = VisualOdometry::new(camera, config).context("creating the visual odometry")?;
+        let vo = VisualOdometry::new(camera, config).map_err(PipelineError::Odometry)?;
         let coupling = match backend {
             Some((config, schedule)) => Some(Coupling {
                 thread: BackendThread::spawn(Backend::new(camera, config.clone())?)?,
@@ -79,6 +70,7 @@ impl Slam {
                 queue: VecDeque::new(),
                 correction: Isometry3::identity(),
                 reports: Vec::new(),
+                answers: Vec::new(),
             }),
             None => None,
         };
@@ -86,6 +78,7 @@ impl Slam {
             vo,
             coupling,
             world: None,
+            reference: None,
             floors: Vec::new(),
             frames: Vec::new(),
             vo_wall_s: 0.0,
@@ -101,6 +94,10 @@ impl Slam {
                 pitch_deg,
                 height_m,
             } => Some(WorldFrame::from_mounting(pitch_deg, height_m)),
+            WorldPlan::Reference(trajectory) => {
+                self.reference = Some(trajectory);
+                None
+            }
         };
         self
     }
@@ -109,7 +106,10 @@ impl Slam {
     /// world frame is given.
     fn look_for_floor(&mut self, frame: &RgbdFrame, keyframe: bool) {
         let position = self.frames.len();
-        if self.world.is_none() && (keyframe || position < world::FLOOR_SEARCH_FRAMES) {
+        if self.world.is_none()
+            && self.reference.is_none()
+            && (keyframe || position < world::FLOOR_SEARCH_FRAMES)
+        {
             if let Some((plane, inliers)) = floor_in_camera(&frame.depth_m, self.vo.camera()) {
                 self.floors.push((position, plane, inliers));
             }
@@ -118,7 +118,7 @@ impl Slam {
 
     /// Answers due before the next frame: waits under the fixed schedule. Returns the
     /// time waited (s) and the live correction.
-    fn take_due(&mut self) -> Result<(f64, Isometry3<f64>)> {
+    fn take_due(&mut self) -> Result<(f64, Isometry3<f64>), PipelineError> {
         let position = self.frames.len();
         match self.coupling.as_mut() {
             Some(c) => Ok((c.take_due(position)?, c.correction)),
@@ -127,11 +127,22 @@ impl Slam {
     }
 
     /// Processes the next frame; `decode_s` is the time its decoding took elsewhere (s).
-    pub fn process(&mut self, frame: &RgbdFrame, decode_s: f64) -> Result<&FrameRecord> {
+    pub fn process(
+        &mut self,
+        frame: &RgbdFrame,
+        decode_s: f64,
+    ) -> Result<FrameRecord, PipelineError> {
         let start = Instant::now();
         let (wait_s, correction) = self.take_due()?;
         let t0 = Instant::now();
-        let mut r = self.vo.process(frame)?;
+        let mut r = self
+            .vo
+            .process(frame)
+            .map_err(|source| PipelineError::Frontend {
+                index: frame.index,
+                t_s: frame.t_s,
+                source,
+            })?;
         self.vo_wall_s += t0.elapsed().as_secs_f64();
         if r.status == TrackingStatus::Lost {
             tracing::warn!(
@@ -152,7 +163,7 @@ impl Slam {
                 info,
             })?;
         }
-        self.frames.push(FrameRecord {
+        let record = FrameRecord {
             index: r.index,
             t_s: r.t_s,
             live_world_from_camera: correction * r.world_from_camera,
@@ -170,20 +181,25 @@ impl Slam {
             timing: r.timing,
             wait_s,
             skip_reason: None,
-        });
+        };
         self.wall_s += start.elapsed().as_secs_f64();
-        self.frames.last().context("the frame was just recorded")
+        Ok(self.record(record))
     }
 
     /// Records a frame that could not be loaded: its pose is predicted by the odometry's
     /// constant-velocity model, and the reason is kept (and counted in reports).
-    pub fn skip(&mut self, index: usize, t_s: f64, reason: String) -> Result<&FrameRecord> {
+    pub fn skip(
+        &mut self,
+        index: usize,
+        t_s: f64,
+        reason: String,
+    ) -> Result<FrameRecord, PipelineError> {
         let start = Instant::now();
         let (wait_s, correction) = self.take_due()?;
         tracing::warn!("frame {index} skipped: {reason}");
         let pose = self.vo.predict(t_s);
         let kf_id = self.vo.current_keyframe().map_or(0, |(id, _)| id);
-        self.frames.push(FrameRecord {
+        let record = FrameRecord {
             index,
             t_s,
             live_world_from_camera: correction * pose,
@@ -197,14 +213,64 @@ impl Slam {
             timing: StageTimes::default(),
             wait_s,
             skip_reason: Some(reason),
-        });
+        };
         self.wall_s += start.elapsed().as_secs_f64();
-        self.frames.last().context("the frame was just recorded")
+        Ok(self.record(record))
+    }
+
+    /// The poses the back end answered since the last call (`world_from_camera` of
+    /// keyframes, in the SLAM's frame, latest last); empty without a back end.
+    pub fn take_answers(&mut self) -> Vec<(u64, Isometry3<f64>)> {
+        self.coupling
+            .as_mut()
+            .map_or_else(Vec::new, Coupling::take_answers)
+    }
+
+    /// Whether a back end runs beside the odometry.
+    pub fn has_backend(&self) -> bool {
+        self.coupling.is_some()
+    }
+
+    /// The world frame as far as it is known now: the given mounting, or, once the first
+    /// frames have been searched for the floor, the floors seen so far at their live
+    /// poses. `None` while it is not known. [`Slam::finish`] refines it with every floor
+    /// seen and the final poses.
+    pub fn provisional_world(&self) -> Option<WorldFrame> {
+        if self.world.is_some() {
+            return self.world;
+        }
+        if let Some(r) = &self.reference {
+            let frames = self
+                .frames
+                .iter()
+                .filter(|f| f.status != FrameStatus::Skipped);
+            return WorldFrame::from_reference(
+                r,
+                frames.map(|f| (f.t_s, f.live_world_from_camera)),
+            );
+        }
+        if self.frames.len() < world::FLOOR_SEARCH_FRAMES {
+            return None;
+        }
+        let floors: Vec<_> = self
+            .floors
+            .iter()
+            .filter_map(|&(i, plane, n)| {
+                Some((self.frames.get(i)?.live_world_from_camera, plane, n))
+            })
+            .collect();
+        WorldFrame::from_floors(&floors)
+    }
+
+    /// Keeps `record` as the next frame's and returns a copy for the caller.
+    fn record(&mut self, record: FrameRecord) -> FrameRecord {
+        self.frames.push(record.clone());
+        record
     }
 
     /// Waits for the back end, runs its final optimization, and returns everything in the
     /// world frame.
-    pub fn finish(self) -> Result<RunOutput> {
+    pub fn finish(self) -> Result<RunOutput, PipelineError> {
         let start = Instant::now();
         let backend = self.coupling.map(finish_backend).transpose()?;
         let mut out = RunOutput {
@@ -216,6 +282,11 @@ impl Slam {
         };
         let world = self.world.or_else(|| {
             let poses = out.final_poses();
+            if let Some(r) = &self.reference {
+                let frames = out.frames.iter().zip(&poses);
+                let known = frames.filter(|(f, _)| f.status != FrameStatus::Skipped);
+                return WorldFrame::from_reference(r, known.map(|(f, p)| (f.t_s, *p)));
+            }
             let floors: Vec<_> = self
                 .floors
                 .iter()
@@ -225,9 +296,15 @@ impl Slam {
         });
         out.world = world.unwrap_or_else(|| {
             tracing::warn!(
-                "no floor seen in the first {} frames nor in keyframes, and no mounting given: \
-                 poses are in the first camera's frame (y down), not gravity-aligned",
-                world::FLOOR_SEARCH_FRAMES
+                "{}: poses are in the first camera's frame (y down), not gravity-aligned",
+                if self.reference.is_some() {
+                    "the reference trajectory covers no frame".to_owned()
+                } else {
+                    format!(
+                        "no floor seen in the first {} frames nor in keyframes, and no mounting given",
+                        world::FLOOR_SEARCH_FRAMES
+                    )
+                }
             );
             WorldFrame::first_camera()
         });
@@ -236,63 +313,4 @@ impl Slam {
         out.wall_s = self.wall_s + start.elapsed().as_secs_f64();
         Ok(out)
     }
-}
-
-/// A progress bar on stderr labelled `what` (hidden when `show` is false): the one style of
-/// every long command.
-pub fn progress_bar(total: usize, what: &str, show: bool) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(total as u64);
-    pb.set_style(
-        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} ({per_sec}, eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar())
-            .progress_chars("=> "),
-    );
-    pb.set_message(what.to_owned());
-    pb
-}
-
-/// Runs the SLAM over the first `max_frames` frames of a sequence (all when `None`), frames
-/// decoded ahead on a background thread: the odometry alone when `backend` is `None`; the
-/// outputs in the world frame `world` finds.
-pub fn run_slam(
-    seq: &TumSequence,
-    config: VoConfig,
-    backend: Option<(BackendConfig, Schedule)>,
-    world: WorldPlan,
-    max_frames: Option<usize>,
-    progress: bool,
-) -> Result<RunOutput> {
-    let mut slam = Slam::new(&seq.camera, config, backend)?.with_world(world);
-    let stream = seq.stream(max_frames, 4);
-    let pb = progress_bar(stream.len(), "tracking", progress);
-    for item in stream {
-        match item {
-            Ok(d) => {
-                slam.process(&d.frame, d.decode_s).with_context(|| {
-                    format!(
-                        "frame {} ({})",
-                        d.frame.index,
-                        seq.frames
-                            .get(d.frame.index)
-                            .map(|e| e.rgb_path.display().to_string())
-                            .unwrap_or_default()
-                    )
-                })?;
-            }
-            Err(StreamError::Frame(failure)) => {
-                let t_s = seq
-                    .frames
-                    .get(failure.index)
-                    .map_or(f64::NAN, |e| e.t_rgb_s);
-                slam.skip(failure.index, t_s, failure.error.to_string())?;
-            }
-            Err(StreamError::Stopped(e)) => return Err(e.into()),
-        }
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-    slam.finish()
 }

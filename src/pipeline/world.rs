@@ -45,12 +45,15 @@ pub enum WorldSource {
     },
     /// The mounting given by the user.
     Mounting,
+    /// A reference trajectory (ground truth, or a robot's own state estimate): the pose
+    /// it gives the first frame it covers.
+    Reference,
     /// Nothing: the first camera's frame (not gravity-aligned).
     FirstCamera,
 }
 
 /// How the world frame is to be found.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum WorldPlan {
     /// From the floor in the first [`FLOOR_SEARCH_FRAMES`] frames and in keyframes, else
     /// the first camera.
@@ -63,6 +66,9 @@ pub enum WorldPlan {
         /// Height of the camera above the ground (m).
         height_m: f64,
     },
+    /// The world of a reference trajectory (`world_from_camera`, z up): the first frame
+    /// within its time span gets the reference's pose there.
+    Reference(stride_core::trajectory::Trajectory),
 }
 
 /// The world frame: `world_from_slam` and where it came from.
@@ -75,6 +81,22 @@ pub struct WorldFrame {
 }
 
 impl WorldFrame {
+    /// The world of `reference` (`world_from_camera`, z up), given the SLAM's poses of the
+    /// frames at `(t_s, slam_from_camera)`: the first frame the reference covers gets the
+    /// reference's pose. `None` when it covers none.
+    pub fn from_reference(
+        reference: &stride_core::trajectory::Trajectory,
+        frames: impl IntoIterator<Item = (f64, Isometry3<f64>)>,
+    ) -> Option<Self> {
+        frames.into_iter().find_map(|(t_s, slam_from_camera)| {
+            let world_from_camera = reference.interpolate(t_s)?;
+            Some(Self {
+                world_from_slam: world_from_camera * slam_from_camera.inverse(),
+                source: WorldSource::Reference,
+            })
+        })
+    }
+
     /// The first camera's frame, not gravity-aligned.
     pub fn first_camera() -> Self {
         Self {
@@ -153,6 +175,9 @@ impl WorldFrame {
                 format!("the floor seen in {frames} frames ({inliers} depth points)")
             }
             WorldSource::Mounting => "the given camera mounting".into(),
+            WorldSource::Reference => {
+                "the reference trajectory (its pose of the first frame it covers)".into()
+            }
             WorldSource::FirstCamera => {
                 return "the first camera's frame (no floor found, no mounting given): \
                         not gravity-aligned"

@@ -113,9 +113,9 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     }
     for (((m, t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
         let total: f64 = t.iter().sum();
-        let (med, p95) = crate::pipeline::median_p95(t.iter().copied());
-        let (pm, _) = crate::pipeline::median_p95(p.iter().copied());
-        let (cm, _) = crate::pipeline::median_p95(c.iter().copied());
+        let (med, p95) = stride::pipeline::median_p95(t.iter().copied());
+        let (pm, _) = stride::pipeline::median_p95(p.iter().copied());
+        let (cm, _) = stride::pipeline::median_p95(c.iter().copied());
         out.insert(
             m.name().into(),
             json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total}),

@@ -40,7 +40,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
 
 /// The median of a series (NaNs ignored; NaN when empty).
 fn median(v: Vec<f64>) -> f64 {
-    crate::pipeline::median_p95(v.into_iter()).0
+    stride::pipeline::median_p95(v.into_iter()).0
 }
 
 /// Runs the ORB-SLAM3 peer harness and returns its summary JSON (last stdout line).

@@ -3,13 +3,15 @@
 //! run by run, and ORB-SLAM3 on the same frames in the same session.
 
 use super::{median, orbslam3_summary};
-use crate::cli::run::{BackendArg, SYNC_LAG_FRAMES};
-use crate::pipeline::{median_p95, Schedule, Slam};
+use crate::cli::run::BackendArg;
 use anyhow::{bail, Result};
 use clap::Args;
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
+use stride::pipeline::world::WorldPlan;
+use stride::pipeline::{median_p95, Schedule};
+use stride::{Pipeline, PipelineConfig};
 use stride_backend::BackendConfig;
 use stride_core::frame::RgbdFrame;
 use stride_datasets::tum::{AssociationOptions, CameraSource, TumSequence};
@@ -59,17 +61,24 @@ fn run_once(
     vo: VoConfig,
     backend: Option<(BackendConfig, Schedule)>,
 ) -> Result<RunFigures> {
-    let mut slam = Slam::new(&seq.camera, vo, backend)?;
+    // Poses only: the same work as the peer's.
+    let config = PipelineConfig {
+        odometry: vo,
+        backend,
+        world: WorldPlan::Floor,
+        map: None,
+    };
+    let mut slam = Pipeline::new(&seq.camera, config)?;
     let t0 = Instant::now();
     for (f, decode_s) in frames {
         slam.process(f, *decode_s)?;
     }
-    let out = slam.finish()?;
+    let out = slam.finish()?.run;
     let wall = t0.elapsed().as_secs_f64();
     let traj = out.trajectory()?;
     let ate_m = match &seq.groundtruth {
         Some(gt) => {
-            ate(gt, &traj, &crate::pipeline::slam_ate_options())?
+            ate(gt, &traj, &stride::pipeline::slam_ate_options())?
                 .trans_m
                 .rmse
         }
@@ -139,7 +148,7 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
         })
     };
     let fixed = with(Schedule::Fixed {
-        lag_frames: SYNC_LAG_FRAMES,
+        lag_frames: Schedule::DEFAULT_LAG_FRAMES,
     });
     let free = with(Schedule::Free);
     // The configurations take turns run by run, so that all see the same machine state:

@@ -1,0 +1,361 @@
+//! What `stride run` writes: the trajectories, the map layers, frames.csv, report.json
+//! and the self-contained report.html, all published at once.
+
+use super::run::RunArgs;
+use super::run_report::RunPage;
+use anyhow::{Context, Result};
+use serde_json::{json, Map, Value};
+use std::fmt::Write as _;
+use std::path::Path;
+use stride::known_poses::views_map;
+use stride::pipeline::world::WorldSource;
+use stride::pipeline::{median_p95, FrameStatus, RunOutput, Schedule};
+use stride::{MapOutput, PipelineOutput};
+use stride_datasets::grid_file::read_grid;
+use stride_datasets::trajectory_file::write_tum_trajectory;
+use stride_datasets::tum::TumSequence;
+use stride_eval::{ate, rpe, AteResult, Preset, RpeOptions, RpeResult};
+use stride_mapping::metrics::{compare, floor_fit, MapScore};
+use stride_output::fs::{write_atomic, StagedDir};
+
+/// Everything a run measured.
+pub struct RunSummary {
+    /// The report.json object.
+    pub json: Value,
+    /// ATE against ground truth, when there is ground truth.
+    pub ate: Option<AteResult>,
+    /// RPE against ground truth, when there is ground truth.
+    pub rpe: Option<RpeResult>,
+    /// The per-frame records.
+    pub output: RunOutput,
+    /// The elevation map on the SLAM's poses, when there is one.
+    pub map: Option<MapOutput>,
+    /// The map against the true terrain (the folder's terrain.npy), when there is one.
+    pub map_score: Option<MapScore>,
+}
+
+/// Writes a run's results into `a.out` (staged, then published whole); fails without
+/// writing anything when no frame could be read.
+pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<RunSummary> {
+    let (output, map) = (out.run, out.map);
+    if output
+        .frames
+        .iter()
+        .all(|f| f.status == FrameStatus::Skipped)
+    {
+        let first = output.frames.first();
+        anyhow::bail!(
+            "none of the {} frames could be read, nothing written (frame {}: {})",
+            output.frames.len(),
+            first.map_or(0, |f| f.index),
+            first
+                .and_then(|f| f.skip_reason.as_deref())
+                .unwrap_or("no frames")
+        );
+    }
+    // The true terrain is in the ground truth's world: the map is scored against it only
+    // when the run's world is that one.
+    let in_gt_world = output.world.source == WorldSource::Reference && a.world_from_groundtruth;
+    let truth_file = Some(a.dataset.join("terrain.npy")).filter(|p| p.is_file() && in_gt_world);
+    let terrain = match truth_file {
+        Some(p) => Some(read_grid(&p, None).context("reading the true terrain")?),
+        None => None,
+    };
+    let map_score = match (&map, &terrain) {
+        (Some(m), Some(t)) => compare(&m.layers.elevation, t),
+        _ => None,
+    };
+    // In the ground truth's world, the same views at ground-truth poses: the part of the
+    // map's error (and unevenness) that is not the SLAM's.
+    let views_gt = match (&map, &seq.groundtruth) {
+        (Some(m), Some(gt)) if in_gt_world => {
+            let frames: Vec<usize> = m
+                .stats
+                .view_frames
+                .iter()
+                .filter_map(|&p| Some(output.frames.get(p)?.index))
+                .collect();
+            let config = a.pipeline_config(seq)?.map.unwrap_or_default();
+            let (layers, _) = views_map(seq, &frames, gt, config)?;
+            Some(json!({
+                "against_true_terrain": terrain.as_ref().and_then(|t| compare(&layers.elevation, t)),
+                "floor": floor_fit(&layers.elevation, stride::known_poses::FLOOR_BAND_M),
+                "cells_observed": layers.cells_observed(),
+            }))
+        }
+        _ => None,
+    };
+    // Everything is written into a staging folder published at the end: a run killed at
+    // any moment leaves the previous output or the complete new one.
+    let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let dir = staged.path();
+    let traj = output.trajectory()?;
+    write_tum_trajectory(&dir.join("trajectory.tum"), &traj)?;
+    // The poses as they were known frame by frame, before later corrections: what a
+    // consumer of live poses (a mapper, a controller) gets. Only a back end corrects them.
+    let live = match &output.backend {
+        Some(b) => {
+            let live = output.live_trajectory()?;
+            write_tum_trajectory(&dir.join("trajectory_live.tum"), &live)?;
+            write_tum_trajectory(&dir.join("keyframes.tum"), &b.keyframe_trajectory(&output))?;
+            Some(live)
+        }
+        None => None,
+    };
+    write_frames_csv(&dir.join("frames.csv"), &output)?;
+    if let Some(m) = &map {
+        crate::cli::map::write_layers(&dir.join("map"), &m.layers)?;
+    }
+
+    let ate_opts = stride::pipeline::slam_ate_options();
+    let (ate_r, rpe_r) = match &seq.groundtruth {
+        Some(gt) => {
+            let at = ate(gt, &traj, &ate_opts);
+            let rp = rpe(gt, &traj, &RpeOptions::for_preset(Preset::Evo));
+            match (at, rp) {
+                (Ok(at), Ok(rp)) => (Some(at), Some(rp)),
+                (at, rp) => {
+                    for e in [at.err(), rp.err()].into_iter().flatten() {
+                        tracing::warn!("evaluation against ground truth failed: {e}");
+                    }
+                    (None, None)
+                }
+            }
+        }
+        None => (None, None),
+    };
+    let ate_live = match (&seq.groundtruth, &live) {
+        (Some(gt), Some(live)) => ate(gt, live, &ate_opts).ok(),
+        _ => None,
+    };
+    let mut json = report_json(
+        a,
+        seq,
+        &output,
+        ate_r.as_ref(),
+        rpe_r.as_ref(),
+        ate_live.as_ref(),
+    );
+    if let (Some(m), Value::Object(o)) = (&map, &mut json) {
+        let mut mj = map_json(m, map_score.as_ref());
+        mj["same_views_groundtruth_poses"] = json!(views_gt);
+        o.insert("map".into(), mj);
+    }
+    write_atomic(
+        &dir.join("report.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
+    let page = RunPage {
+        args: a,
+        json: &json,
+        out: &output,
+        map: map.as_ref(),
+        terrain: terrain.as_ref(),
+        ate: ate_r.as_ref(),
+        rpe: rpe_r.as_ref(),
+    };
+    super::run_report::write_html(dir, &page)?;
+    staged
+        .publish()
+        .with_context(|| format!("publishing {}", a.out.display()))?;
+    Ok(RunSummary {
+        json,
+        ate: ate_r,
+        rpe: rpe_r,
+        output,
+        map,
+        map_score,
+    })
+}
+
+/// The report.json object of the elevation map.
+fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
+    let s = &m.stats;
+    let (upd_med, upd_p95) = median_p95(s.update_s.iter().map(|t| t * 1e3));
+    let (reb_med, reb_p95) = median_p95(s.rebuild_s.iter().map(|t| t * 1e3));
+    let floor = floor_fit(&m.layers.elevation, stride::known_poses::FLOOR_BAND_M);
+    json!({
+        "folder": "map",
+        "cells_observed": m.layers.cells_observed(),
+        "views": s.view_frames.len(),
+        "views_mapped": s.views_mapped,
+        "views_settled": s.views_settled,
+        "views_unmapped": s.views_unmapped,
+        "rebuilds": s.rebuilds,
+        "update_ms": {"median": upd_med, "p95": upd_p95},
+        "rebuild_ms": {"median": reb_med, "p95": reb_p95},
+        "wall_s": m.wall_s,
+        "points_used": s.points_used,
+        "rejected": serde_json::to_value(s.rejected).unwrap_or(Value::Null),
+        "floor": floor.and_then(|f| serde_json::to_value(f).ok()),
+        "against_true_terrain": score.and_then(|sc| serde_json::to_value(sc).ok()),
+    })
+}
+
+fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
+    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,total_ms,wait_ms\n");
+    for f in &out.frames {
+        let t = &f.timing;
+        let _ = writeln!(
+            s,
+            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            f.index,
+            f.t_s,
+            f.status.as_str(),
+            u8::from(f.keyframe),
+            f.keyframe_id,
+            f.tracked,
+            f.inliers,
+            f.decode_s * 1e3,
+            t.detect_s * 1e3,
+            t.track_s * 1e3,
+            t.ransac_s * 1e3,
+            t.refine_s * 1e3,
+            t.total_s * 1e3,
+            f.wait_s * 1e3
+        );
+    }
+    write_atomic(path, s.as_bytes()).with_context(|| format!("writing {}", path.display()))
+}
+
+fn report_json(
+    a: &RunArgs,
+    seq: &TumSequence,
+    out: &RunOutput,
+    at: Option<&AteResult>,
+    rp: Option<&RpeResult>,
+    at_live: Option<&AteResult>,
+) -> Value {
+    let processed: Vec<_> = out
+        .frames
+        .iter()
+        .filter(|f| f.status != FrameStatus::Skipped)
+        .collect();
+    let count = |s: FrameStatus| out.frames.iter().filter(|f| f.status == s).count();
+    let stage = |f: fn(&stride::pipeline::FrameRecord) -> f64| {
+        let (m, p) = median_p95(processed.iter().map(|r| f(r) * 1e3));
+        json!({"median": m, "p95": p})
+    };
+    let mut timing = Map::new();
+    timing.insert("decode".into(), stage(|r| r.decode_s));
+    timing.insert("detect".into(), stage(|r| r.timing.detect_s));
+    timing.insert("track".into(), stage(|r| r.timing.track_s));
+    timing.insert("ransac".into(), stage(|r| r.timing.ransac_s));
+    timing.insert("refine".into(), stage(|r| r.timing.refine_s));
+    timing.insert("total".into(), stage(|r| r.timing.total_s));
+    let rate = |s: f64| {
+        if s > 0.0 {
+            processed.len() as f64 / s
+        } else {
+            f64::NAN
+        }
+    };
+    let mut m = Map::new();
+    m.insert("frames".into(), json!(out.frames.len()));
+    m.insert("frames_tracked".into(), json!(count(FrameStatus::Tracked)));
+    m.insert("frames_lost".into(), json!(count(FrameStatus::Lost)));
+    m.insert("frames_skipped".into(), json!(count(FrameStatus::Skipped)));
+    m.insert(
+        "keyframes".into(),
+        json!(out.frames.iter().filter(|f| f.keyframe).count()),
+    );
+    m.insert("fps".into(), json!(rate(out.wall_s)));
+    m.insert("odometry_fps".into(), json!(rate(out.vo_wall_s)));
+    let waits: Vec<f64> = out
+        .frames
+        .iter()
+        .map(|f| f.wait_s)
+        .filter(|w| *w > 0.0)
+        .collect();
+    m.insert(
+        "frontend_waits".into(),
+        json!({"frames": waits.len(), "total_ms": waits.iter().sum::<f64>() * 1e3}),
+    );
+    m.insert("timing_ms".into(), Value::Object(timing));
+    m.insert("backend".into(), json!(a.backend_name()));
+    let (roll_deg, pitch_deg, height_m) = out.world.first_camera_attitude();
+    m.insert(
+        "world_frame".into(),
+        json!({
+            "source": match out.world.source {
+                WorldSource::Floor { .. } => "floor",
+                WorldSource::Mounting => "mounting",
+                WorldSource::Reference => "reference trajectory",
+                WorldSource::FirstCamera => "first camera",
+            },
+            "gravity_aligned": out.world.source != WorldSource::FirstCamera,
+            "description": out.world.describe(),
+            "first_camera_height_m": height_m,
+            "first_camera_pitch_deg": pitch_deg,
+            "first_camera_roll_deg": roll_deg,
+        }),
+    );
+    if let Some(b) = &out.backend {
+        let (med, p95) = median_p95(b.keyframes.iter().map(|k| k.time_s * 1e3));
+        m.insert(
+            "ba_ms".into(),
+            json!({"median": med, "p95": p95, "count": b.keyframes.len(),
+                   "final": b.final_solve.as_ref().map(|s| s.time_s * 1e3)}),
+        );
+        m.insert("map_points".into(), json!(b.map_points));
+        m.insert("map_keyframes".into(), json!(b.map_keyframes));
+        m.insert("culled_keyframes".into(), json!(b.culled_keyframes));
+        let sum = |f: fn(&stride_backend::KeyframeReport) -> usize| -> usize {
+            b.keyframes.iter().map(f).sum()
+        };
+        m.insert(
+            "associations".into(),
+            json!({"by_track": sum(|k| k.by_track), "by_orb": sum(|k| k.by_orb), "fused": sum(|k| k.fused),
+                   "new_points": sum(|k| k.new_points), "outliers": sum(|k| k.outliers),
+                   "odometry_edges": sum(|k| usize::from(k.odometry_edge))}),
+        );
+        m.insert(
+            "schedule".into(),
+            json!(if a.free_running { "free" } else { "fixed" }),
+        );
+        let c = &b.config;
+        m.insert(
+            "backend_config".into(),
+            json!({
+                "window_keyframes": c.window_keyframes,
+                "max_fixed_keyframes": c.max_fixed_keyframes,
+                "local_iterations": c.local_iterations,
+                "final_iterations": c.final_iterations,
+                "min_reobserved": c.min_reobserved,
+                "model_noise_m": c.model_noise_m,
+                "depth_noise_scale": c.depth_noise_scale,
+                "huber_chi2": c.huber_chi2,
+                "outlier_chi2": c.outlier_chi2,
+                "match_max_hamming": c.matching.max_hamming,
+                "match_ratio": c.matching.ratio,
+                "match_chi2_gate": c.matching.chi2_gate,
+                "sync_lag_frames": Schedule::DEFAULT_LAG_FRAMES,
+            }),
+        );
+    }
+    m.insert("seed".into(), json!(a.seed));
+    m.insert("dataset".into(), json!(a.dataset.display().to_string()));
+    m.insert("camera".into(), json!(seq.camera_source.to_string()));
+    if let Some(at) = at {
+        m.insert("ate".into(), at.to_json());
+    }
+    if let Some(at) = at_live {
+        m.insert("ate_live".into(), at.to_json());
+    }
+    if let Some(rp) = rp {
+        m.insert("rpe".into(), rp.to_json());
+    }
+    let skipped: Vec<Value> = out
+        .frames
+        .iter()
+        .filter_map(|f| {
+            f.skip_reason
+                .as_ref()
+                .map(|r| json!({"index": f.index, "reason": r}))
+        })
+        .collect();
+    if !skipped.is_empty() {
+        m.insert("skipped".into(), Value::Array(skipped));
+    }
+    Value::Object(m)
+}

@@ -1,0 +1,163 @@
+//! Elevation mapping of a recorded sequence with known poses (ground truth, or a
+//! trajectory file): every depth frame at its pose interpolated at the depth image's time,
+//! into one or more mappers side by side, scored against the true terrain when there is
+//! one.
+
+use crate::PipelineError;
+use stride_core::grid::Grid;
+use stride_core::trajectory::Trajectory;
+use stride_datasets::stream::StreamError;
+use stride_datasets::tum::TumSequence;
+use stride_mapping::input::{Rejections, SensorFrame};
+use stride_mapping::metrics::{compare, floor_fit, phantoms, FloorFit, MapScore, PhantomScore};
+use stride_mapping::post::MedianStats;
+use stride_mapping::{ElevationMapper, MapLayers};
+
+/// A mapper's results over the sequence.
+pub struct MapperRun {
+    /// Its name.
+    pub name: &'static str,
+    /// Its layers (stack: after the median fill).
+    pub layers: MapLayers,
+    /// Update time per frame (s).
+    pub update_s: Vec<f64>,
+    /// Points used.
+    pub points_used: usize,
+    /// Dropped measurements.
+    pub rejected: Rejections,
+    /// Columns cleared by the visibility check.
+    pub cells_cleared: usize,
+    /// What the median filter changed (stack mapper only).
+    pub median: MedianStats,
+    /// Comparison with ground truth.
+    pub score: Option<MapScore>,
+    /// Phantom obstacles over flat ground truth.
+    pub phantoms: Option<PhantomScore>,
+    /// The floor's plane fit.
+    pub floor: Option<FloorFit>,
+}
+
+/// Cells within this height of the floor plane (m) count as floor in the flatness fit.
+pub const FLOOR_BAND_M: f64 = 0.10;
+
+/// Phantom obstacles: cells more than 2 cm above ground truth that is flat (within 1 cm)
+/// over 5 cm around.
+pub fn phantom_score(map: &Grid<f32>, gt: &Grid<f32>) -> PhantomScore {
+    phantoms(map, gt, 0.05, 0.01, 0.02)
+}
+
+/// Frames mapped and skipped.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct FrameCounts {
+    /// Frames in the sequence (up to --max-frames).
+    pub frames: usize,
+    /// Frames integrated.
+    pub mapped: usize,
+    /// Frames outside the poses' time span.
+    pub no_pose: usize,
+    /// Frames that could not be loaded.
+    pub unreadable: usize,
+}
+
+/// Maps a sequence with the given poses into each mapper; returns per-mapper runs, each
+/// map as its mapper finishes it (the stack map's median fill per its configuration).
+pub fn map_sequence(
+    seq: &TumSequence,
+    poses: &Trajectory,
+    mut mappers: Vec<Box<dyn ElevationMapper>>,
+    max_frames: Option<usize>,
+    gt: Option<&Grid<f32>>,
+    mut on_frame: impl FnMut(),
+) -> Result<(Vec<MapperRun>, FrameCounts), PipelineError> {
+    let stream = seq.stream(max_frames, 4);
+    let mut counts = FrameCounts::default();
+    let mut stats: Vec<(Vec<f64>, usize, Rejections, usize)> = mappers
+        .iter()
+        .map(|_| (Vec::new(), 0, Rejections::default(), 0))
+        .collect();
+    for item in stream {
+        counts.frames += 1;
+        on_frame();
+        let decoded = match item {
+            Ok(d) => d,
+            Err(StreamError::Frame(f)) => {
+                tracing::warn!("frame {} skipped: {}", f.index, f.error);
+                counts.unreadable += 1;
+                continue;
+            }
+            Err(StreamError::Stopped(e)) => return Err(e.into()),
+        };
+        let frame = &decoded.frame;
+        let Some(pose) = poses.interpolate(frame.t_depth_s) else {
+            counts.no_pose += 1;
+            continue;
+        };
+        counts.mapped += 1;
+        let sf = SensorFrame::depth(&frame.depth_m, &seq.camera.camera, pose, frame.t_depth_s)?;
+        for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
+            let u = m.integrate(&sf);
+            s.0.push(u.update_s);
+            s.1 += u.points_used;
+            s.2.add(&u.rejected);
+            s.3 += u.cells_cleared;
+        }
+    }
+    let mut runs = Vec::new();
+    for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
+        // The mapper's own post-processing (the stack map's median fill; none for the
+        // baseline).
+        let (layers, median) = m.finished();
+        let score = gt.and_then(|g| compare(&layers.elevation, g));
+        let phantoms = gt.map(|g| phantom_score(&layers.elevation, g));
+        let floor = floor_fit(&layers.elevation, FLOOR_BAND_M);
+        runs.push(MapperRun {
+            name: m.name(),
+            layers,
+            update_s,
+            points_used,
+            rejected,
+            cells_cleared,
+            median,
+            score,
+            phantoms,
+            floor,
+        });
+    }
+    Ok((runs, counts))
+}
+
+/// The pipeline's elevation map made from the same views with other poses (ground truth,
+/// to separate the SLAM's part of a map's error from the mapper's): each frame of `frames`
+/// (indices in `seq`) loaded and mapped at `poses` (world frame, z up) interpolated at its
+/// colour image's time, as [`crate::Pipeline`] maps its views. Returns the map and the
+/// number of frames outside the poses' time span (left out).
+pub fn views_map(
+    seq: &TumSequence,
+    frames: &[usize],
+    poses: &Trajectory,
+    config: crate::pipeline::terrain::TerrainConfig,
+) -> Result<(MapLayers, usize), PipelineError> {
+    let mut terrain = crate::pipeline::terrain::Terrain::new(&seq.camera.camera, config)?;
+    terrain.set_world(nalgebra::Isometry3::identity());
+    let mut outside = 0;
+    for (position, &index) in frames.iter().enumerate() {
+        let frame = seq.load_frame(index)?;
+        let Some(pose) = poses.interpolate(frame.t_s) else {
+            outside += 1;
+            continue;
+        };
+        // Each view is its own keyframe, placed at once.
+        let id = position as u64;
+        terrain.add_view(
+            position,
+            frame.t_s,
+            &frame.depth_m,
+            id,
+            nalgebra::Isometry3::identity(),
+        );
+        terrain.set_poses(&[(id, pose)]);
+        terrain.update()?;
+    }
+    let (layers, _) = terrain.finish(|_| None)?;
+    Ok((layers, outside))
+}

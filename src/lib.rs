@@ -1,0 +1,26 @@
+//! # stride
+//!
+//! RGB-D SLAM and 2.5-D elevation mapping for walking robots, as a library: feed
+//! [`Pipeline`] one RGB-D frame at a time (as a robot's driver delivers them) and get each
+//! frame's pose, and at the end the optimized trajectory and the elevation map built on it.
+//!
+//! * [`pipeline`]: the pipeline and its stages' glue: the SLAM (visual odometry with the
+//!   back end in its own thread), the gravity-aligned world frame, the elevation map fed by
+//!   keyframes at their optimized poses.
+//! * [`known_poses`]: elevation maps of a recorded sequence with known poses (ground truth
+//!   or a trajectory file), several mappers side by side, scored against the true terrain.
+//!
+//! The stages themselves live in the workspace's crates: `stride-frontend` (odometry),
+//! `stride-backend` (feature map, bundle adjustment), `stride-mapping` (elevation maps),
+//! `stride-datasets` (TUM folders, the synthetic lab), `stride-eval` (ATE/RPE).
+//!
+//! Frames: every pose is `world_from_camera`, the world z up and gravity-aligned in
+//! metres, cameras with x right, y down, z forward. See ARCHITECTURE.md.
+
+pub mod known_poses;
+pub mod pipeline;
+
+pub use pipeline::{
+    run_sequence, FrameRecord, FrameStatus, MapOutput, Pipeline, PipelineConfig, PipelineError,
+    PipelineOutput,
+};

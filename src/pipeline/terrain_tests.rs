@@ -1,0 +1,153 @@
+//! The pipeline's map: views wait for their keyframe's pose, a moved keyframe rebuilds the
+//! map where its views went, and old views settle.
+
+use super::*;
+use nalgebra::{Translation3, UnitQuaternion, Vector3};
+
+/// Views per place: enough sightings for a voxel to count.
+const VIEWS: usize = 5;
+
+/// A camera `height_m` above the world origin looking straight down (camera x along world
+/// x, camera y along world -y).
+fn looking_down(height_m: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, height_m),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI),
+    )
+}
+
+/// The median height of the map's known cells (m) and their count.
+fn median_height(t: &Terrain) -> (f64, usize) {
+    let layers = t.layers().unwrap();
+    let mut h: Vec<f64> = layers
+        .elevation
+        .as_slice()
+        .iter()
+        .filter(|v| !v.is_nan())
+        .map(|&v| f64::from(v))
+        .collect();
+    h.sort_by(f64::total_cmp);
+    (h.get(h.len() / 2).copied().unwrap_or(f64::NAN), h.len())
+}
+
+#[test]
+fn a_keyframe_the_back_end_moves_moves_its_terrain_with_it() {
+    let camera = PinholeCamera::KINECT_DEFAULT;
+    let mut t = Terrain::new(&camera, TerrainConfig::default()).unwrap();
+    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
+    // A voxel needs a few sightings to count (paper 000's vitality): five views of one
+    // keyframe, tied to it by the identity.
+    for frame in 0..VIEWS {
+        t.add_view(frame, frame as f64, &floor, 7, Isometry3::identity());
+    }
+    t.update().unwrap();
+    // No world frame and no pose yet: nothing is mapped.
+    assert_eq!((t.stats().views_mapped, median_height(&t).1), (0, 0));
+    t.set_world(Isometry3::identity());
+    t.set_poses(&[(7, looking_down(1.0))]);
+    t.update().unwrap();
+    let (h, cells) = median_height(&t);
+    assert_eq!(t.stats().views_mapped, VIEWS);
+    assert!(cells > 1000 && h.abs() < 0.003, "{h} m over {cells} cells");
+    // The back end lifts the keyframe by 4 cm: the floor is rebuilt 4 cm higher, not
+    // smeared between both heights.
+    t.set_poses(&[(7, looking_down(1.04))]);
+    t.update().unwrap();
+    let (h, _) = median_height(&t);
+    assert_eq!(t.stats().rebuilds, 1);
+    assert!((h - 0.04).abs() < 0.003, "{h}");
+    // A move below the threshold (1 mm) keeps the map as it is.
+    t.set_poses(&[(7, looking_down(1.041))]);
+    t.update().unwrap();
+    assert_eq!(t.stats().rebuilds, 1);
+    // The final poses rebuild it once more when they moved.
+    let (layers, stats) = t.finish(|_| Some(looking_down(0.98))).unwrap();
+    assert_eq!(stats.rebuilds, 2);
+    let known: Vec<f32> = layers
+        .elevation
+        .as_slice()
+        .iter()
+        .copied()
+        .filter(|v| !v.is_nan())
+        .collect();
+    let mean = known.iter().map(|&v| f64::from(v)).sum::<f64>() / known.len() as f64;
+    assert!((mean + 0.02).abs() < 0.003, "{mean}");
+}
+
+#[test]
+fn old_views_settle_and_stay_in_the_map() {
+    let camera = PinholeCamera::KINECT_DEFAULT;
+    let config = TerrainConfig {
+        max_stored_views: VIEWS,
+        ..TerrainConfig::default()
+    };
+    let mut t = Terrain::new(&camera, config).unwrap();
+    t.set_world(Isometry3::identity());
+    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
+    // Two views 2 m apart, each its own keyframe.
+    for (i, x) in [0.0, 2.0].into_iter().enumerate() {
+        for v in 0..VIEWS {
+            let frame = i * VIEWS + v;
+            t.add_view(frame, frame as f64, &floor, i as u64, Isometry3::identity());
+        }
+        let pose =
+            Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity())
+                * looking_down(1.0);
+        t.set_poses(&[(i as u64, pose)]);
+        t.update().unwrap();
+    }
+    assert_eq!(
+        (t.stats().views_settled, t.stats().views_mapped),
+        (VIEWS, 2 * VIEWS)
+    );
+    let layers = t.layers().unwrap();
+    let (x0, _, x1, _) = layers.elevation.geometry.extent();
+    assert!(
+        x0 < -0.5 && x1 > 2.5,
+        "both views' floor is kept: x {x0} to {x1}"
+    );
+}
+
+#[test]
+fn invalid_settings_are_refused_by_key() {
+    let camera = PinholeCamera::KINECT_DEFAULT;
+    let cases = [
+        (
+            TerrainConfig {
+                decimation: 0,
+                ..TerrainConfig::default()
+            },
+            "map.decimation",
+        ),
+        (
+            TerrainConfig {
+                rebuild_translation_m: -1.0,
+                ..TerrainConfig::default()
+            },
+            "map.rebuild_translation_m",
+        ),
+        (
+            TerrainConfig {
+                every_frames: 0,
+                ..TerrainConfig::default()
+            },
+            "map.every_frames",
+        ),
+    ];
+    for (config, key) in cases {
+        let err = Terrain::new(&camera, config).err().unwrap().to_string();
+        assert!(err.contains(key), "{err}");
+    }
+    let zero_resolution = TerrainConfig {
+        stack: stride_mapping::stack::StackConfig {
+            resolution_m: 0.0,
+            ..Default::default()
+        },
+        ..TerrainConfig::default()
+    };
+    let err = Terrain::new(&camera, zero_resolution)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(err.contains("resolution_m"), "{err}");
+}
