@@ -7,6 +7,8 @@
 //! * [`pipeline`]: the pipeline and its stages' glue: the SLAM (visual odometry with the
 //!   back end in its own thread), the gravity-aligned world frame, the elevation map fed by
 //!   keyframes at their optimized poses.
+//! * [`config`]: every stage's parameters as one TOML file, with documented defaults and
+//!   validation that names the key.
 //! * [`known_poses`]: elevation maps of a recorded sequence with known poses (ground truth
 //!   or a trajectory file), several mappers side by side, scored against the true terrain.
 //!
@@ -17,6 +19,7 @@
 //! Frames: every pose is `world_from_camera`, the world z up and gravity-aligned in
 //! metres, cameras with x right, y down, z forward. See ARCHITECTURE.md.
 
+pub mod config;
 pub mod known_poses;
 pub mod pipeline;
 

@@ -166,3 +166,65 @@ fn the_camera_is_reported_by_name_not_as_a_debug_string() {
     let r = common::report(&out);
     assert_eq!(r["camera"], "fr3 (from the folder name)");
 }
+
+#[test]
+fn the_configuration_file_is_documented_checked_and_overridden_by_flags() {
+    let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let teddy = teddy.to_str().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    // The printed defaults are a valid file.
+    let defaults = run(&["config", "--print-defaults"]);
+    assert!(defaults.status.success());
+    let text = String::from_utf8_lossy(&defaults.stdout).into_owned();
+    assert!(
+        text.contains("[map.stack]") && text.contains("# "),
+        "{text}"
+    );
+    let file = tmp.path().join("defaults.toml");
+    std::fs::write(&file, &text).unwrap();
+    common::run_ok(&["config", "--check", file.to_str().unwrap()]);
+    // A typo and a value out of range are named, before any work and without output.
+    let out = tmp.path().join("never");
+    let o = out.to_str().unwrap();
+    for (body, expected) in [
+        ("[odometry]\nseed = 3\nklt_level = 2\n", "klt_level"),
+        ("[map]\ndecimation = 9\n", "map.decimation = 9: 1 to 8"),
+    ] {
+        let bad = tmp.path().join("bad.toml");
+        std::fs::write(&bad, body).unwrap();
+        let b = bad.to_str().unwrap();
+        let err = fails(&["run", "--dataset", teddy, "--out", o, "--config", b]);
+        assert!(err.contains(b) && err.contains(expected), "{err}");
+        assert!(!out.exists());
+        let err = fails(&["config", "--check", b]);
+        assert!(err.contains(expected), "{err}");
+    }
+    // The file's values apply, a flag overrides them, and the run records what it used.
+    let cfg = tmp.path().join("mine.toml");
+    std::fs::write(&cfg, "map = false\n[odometry]\nseed = 5\n").unwrap();
+    let c = cfg.to_str().unwrap();
+    let r = common::run_report(
+        "run",
+        std::path::Path::new(teddy),
+        &out,
+        &["--config", c, "--max-frames", "8"],
+    );
+    assert_eq!(r["seed"], 5);
+    assert_eq!(r["config"]["map"], false);
+    assert!(r.get("map").is_none() && !out.join("map").exists());
+    let used = std::fs::read_to_string(out.join("config.toml")).unwrap();
+    assert!(
+        used.contains("seed = 5") && used.contains("map = false"),
+        "{used}"
+    );
+    let again = tmp.path().join("again");
+    let r = common::run_report(
+        "run",
+        std::path::Path::new(teddy),
+        &again,
+        &["--config", c, "--seed", "2", "--max-frames", "8"],
+    );
+    assert_eq!(r["seed"], 2);
+}

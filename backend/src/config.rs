@@ -5,7 +5,8 @@ use crate::matching::MatchParams;
 use stride_core::uncertainty::PrimeSenseModel;
 
 /// What the back end optimizes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum BackendMode {
     /// Bundle adjustment of keyframe poses and 3-D points (paper 004, eq. 1).
     BundleAdjustment,
@@ -25,7 +26,8 @@ impl BackendMode {
 }
 
 /// Parameters of [`crate::Backend`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct BackendConfig {
     /// Bundle adjustment or pose graph.
     pub mode: BackendMode,

@@ -12,7 +12,8 @@ use stride_core::camera::PinholeCamera;
 use stride_frontend::features::hamming;
 
 /// Settings of [`match_points`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct MatchParams {
     /// Smallest search radius around a projection (px).
     pub min_radius_px: f64,

@@ -16,7 +16,8 @@ use crate::camera::PinholeCamera;
 use nalgebra::{Matrix3, Point3};
 
 /// The PrimeSense/Kinect uncertainty model of paper 000, eqs. 10-12.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PrimeSenseModel {
     /// Variance of the pixel column (px^2).
     pub var_u_px2: f64,

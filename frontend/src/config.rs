@@ -1,9 +1,11 @@
 //! Every parameter of the visual odometry, with its default and its unit.
 
+use crate::error::FrontendError;
 use stride_core::uncertainty::PrimeSenseModel;
 
 /// How RANSAC decides that a correspondence is an inlier.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum InlierTest {
     /// Squared Mahalanobis distance of the 3-D residual under both points' covariances
     /// (`r^T (Sigma_ref + R Sigma_cur R^T)^-1 r`) below this chi-square bound (3 degrees of
@@ -21,7 +23,8 @@ pub enum InlierTest {
 
 /// Parameters of [`crate::VisualOdometry`]. The defaults are those of the full SLAM (with a
 /// back end); [`VoConfig::odometry_only`] those of the odometry alone.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct VoConfig {
     /// Keypoints to keep tracked (about 500-1000).
     pub target_features: usize,
@@ -53,10 +56,12 @@ pub struct VoConfig {
     /// When too few tracks pass the strict checks (heavy or changing blur), a second attempt
     /// accepts forward-backward errors up to this (px) without re-alignment and lets RANSAC
     /// sort the tracks out. `None` disables the second attempt.
+    #[serde(with = "stride_core::serde_opt")]
     pub relaxed_fb_max_error_px: Option<f32>,
     /// Re-align every track with its appearance in the keyframe where it was detected
     /// (removes frame-to-frame drift); tracks that move more than this are dropped (px).
     /// `None` disables the re-alignment.
+    #[serde(with = "stride_core::serde_opt")]
     pub realign_max_correction_px: Option<f32>,
     /// Depth range used for 3-D points (m).
     pub min_depth_m: f64,
@@ -102,12 +107,224 @@ pub struct VoConfig {
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
     /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
     /// shutter.
+    #[serde(skip)]
     pub rolling_shutter_s: f64,
     /// Seed of RANSAC's sampling.
     pub seed: u64,
 }
 
 impl VoConfig {
+    /// Checks every parameter's range; the error names the first one out of range.
+    pub fn validate(&self) -> Result<(), FrontendError> {
+        fn check<T: PartialOrd + std::fmt::Display>(
+            name: &'static str,
+            value: T,
+            ok: bool,
+            allowed: &'static str,
+        ) -> Result<(), FrontendError> {
+            if ok {
+                Ok(())
+            } else {
+                Err(FrontendError::Parameter {
+                    name,
+                    value: value.to_string(),
+                    allowed,
+                })
+            }
+        }
+        let pos = |v: f64| v.is_finite() && v > 0.0;
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
+        let c = self;
+        check(
+            "target_features",
+            c.target_features,
+            (20..=20_000).contains(&c.target_features),
+            "20 to 20000",
+        )?;
+        check(
+            "grid_cols",
+            c.grid_cols,
+            (1..=64).contains(&c.grid_cols),
+            "1 to 64",
+        )?;
+        check(
+            "grid_rows",
+            c.grid_rows,
+            (1..=64).contains(&c.grid_rows),
+            "1 to 64",
+        )?;
+        check(
+            "fast_threshold",
+            c.fast_threshold,
+            (1..=255).contains(&c.fast_threshold),
+            "1 to 255",
+        )?;
+        check(
+            "min_fast_threshold",
+            c.min_fast_threshold,
+            (1..=c.fast_threshold).contains(&c.min_fast_threshold),
+            "1 to fast_threshold",
+        )?;
+        check(
+            "min_feature_distance_px",
+            c.min_feature_distance_px,
+            pos(f64::from(c.min_feature_distance_px)),
+            "positive (px)",
+        )?;
+        check(
+            "redetect_fraction",
+            c.redetect_fraction,
+            c.redetect_fraction > 0.0 && c.redetect_fraction <= 1.0,
+            "within (0, 1]",
+        )?;
+        check(
+            "klt_window",
+            c.klt_window,
+            (5..=101).contains(&c.klt_window),
+            "5 to 101 (px)",
+        )?;
+        check(
+            "klt_levels",
+            c.klt_levels,
+            (0..=8).contains(&c.klt_levels),
+            "0 to 8",
+        )?;
+        check(
+            "klt_iterations",
+            c.klt_iterations,
+            (1..=1000).contains(&c.klt_iterations),
+            "1 to 1000",
+        )?;
+        check(
+            "fb_max_error_px",
+            c.fb_max_error_px,
+            pos(f64::from(c.fb_max_error_px)),
+            "positive (px)",
+        )?;
+        if let Some(r) = c.relaxed_fb_max_error_px {
+            check(
+                "relaxed_fb_max_error_px",
+                r,
+                r.is_finite() && r >= c.fb_max_error_px,
+                "at least fb_max_error_px (px), or false",
+            )?;
+        }
+        if let Some(r) = c.realign_max_correction_px {
+            check(
+                "realign_max_correction_px",
+                r,
+                pos(f64::from(r)),
+                "positive (px), or false",
+            )?;
+        }
+        check(
+            "min_depth_m",
+            c.min_depth_m,
+            pos(c.min_depth_m),
+            "positive (m)",
+        )?;
+        check(
+            "max_depth_m",
+            c.max_depth_m,
+            c.max_depth_m.is_finite() && c.max_depth_m > c.min_depth_m,
+            "above min_depth_m (m)",
+        )?;
+        check(
+            "depth_edge_rel",
+            c.depth_edge_rel,
+            non_neg(c.depth_edge_rel),
+            "0 or more",
+        )?;
+        let u = &c.uncertainty;
+        check(
+            "uncertainty.var_u_px2",
+            u.var_u_px2,
+            non_neg(u.var_u_px2),
+            "0 or more (px^2)",
+        )?;
+        check(
+            "uncertainty.var_v_px2",
+            u.var_v_px2,
+            non_neg(u.var_v_px2),
+            "0 or more (px^2)",
+        )?;
+        check(
+            "uncertainty.min_sigma_d_m",
+            u.min_sigma_d_m,
+            non_neg(u.min_sigma_d_m),
+            "0 or more (m)",
+        )?;
+        match c.inlier_test {
+            InlierTest::Mahalanobis { chi2 } => {
+                check("inlier_test.chi2", chi2, pos(chi2), "positive")?
+            }
+            InlierTest::Euclidean { max_m } => {
+                check("inlier_test.max_m", max_m, pos(max_m), "positive (m)")?
+            }
+        }
+        check(
+            "model_noise_m",
+            c.model_noise_m,
+            non_neg(c.model_noise_m),
+            "0 or more (m)",
+        )?;
+        check(
+            "ransac_confidence",
+            c.ransac_confidence,
+            c.ransac_confidence > 0.0 && c.ransac_confidence < 1.0,
+            "within (0, 1)",
+        )?;
+        check(
+            "ransac_max_iterations",
+            c.ransac_max_iterations,
+            c.ransac_max_iterations >= 1,
+            "1 or more",
+        )?;
+        check(
+            "min_inliers",
+            c.min_inliers,
+            c.min_inliers >= 3,
+            "3 or more",
+        )?;
+        check(
+            "keyframe_min_inliers",
+            c.keyframe_min_inliers,
+            c.keyframe_min_inliers >= 3,
+            "3 or more",
+        )?;
+        check(
+            "keyframe_max_translation_m",
+            c.keyframe_max_translation_m,
+            pos(c.keyframe_max_translation_m),
+            "positive (m)",
+        )?;
+        check(
+            "keyframe_max_rotation_deg",
+            c.keyframe_max_rotation_deg,
+            pos(c.keyframe_max_rotation_deg),
+            "positive (deg)",
+        )?;
+        check(
+            "max_step_translation_m",
+            c.max_step_translation_m,
+            pos(c.max_step_translation_m),
+            "positive (m)",
+        )?;
+        check(
+            "max_step_rotation_deg",
+            c.max_step_rotation_deg,
+            pos(c.max_step_rotation_deg),
+            "positive (deg)",
+        )?;
+        check(
+            "rolling_shutter_s",
+            c.rolling_shutter_s,
+            (0.0..=0.1).contains(&c.rolling_shutter_s),
+            "0 to 0.1 (s)",
+        )?;
+        Ok(())
+    }
+
     /// The defaults for the odometry running alone, without a back end: keyframes (and new
     /// points) less often, which drifts less (see [`VoConfig::redetect_fraction`]).
     pub fn odometry_only() -> Self {

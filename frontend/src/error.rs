@@ -23,6 +23,13 @@ pub enum FrontendError {
         camera_height: u32,
     },
     /// A parameter is out of range.
-    #[error("invalid visual odometry parameter: {0}")]
-    Config(String),
+    #[error("invalid visual odometry parameter {name} = {value}: {allowed}")]
+    Parameter {
+        /// The parameter (a field of `VoConfig`).
+        name: &'static str,
+        /// The value given.
+        value: String,
+        /// What is allowed.
+        allowed: &'static str,
+    },
 }

@@ -84,17 +84,7 @@ fn scale_motion(m: &Isometry3<f64>, ratio: f64) -> Isometry3<f64> {
 impl VisualOdometry {
     /// A new odometry for a camera. Validates the configuration.
     pub fn new(camera: PinholeCamera, config: VoConfig) -> Result<Self, FrontendError> {
-        if config.target_features < 20
-            || config.min_inliers < 3
-            || config.klt_window < 5
-            || config.klt_levels < 0
-            || !(0.0..=0.1).contains(&config.rolling_shutter_s)
-        {
-            return Err(FrontendError::Config(format!(
-                "target_features {} (>= 20), min_inliers {} (>= 3), klt_window {} (>= 5), klt_levels {} (>= 0), rolling_shutter_s {} (0 to 0.1 s)",
-                config.target_features, config.min_inliers, config.klt_window, config.klt_levels, config.rolling_shutter_s
-            )));
-        }
+        config.validate()?;
         Ok(Self {
             detector: Detector::new(&config)?,
             rng: SplitMix64::new(config.seed),

@@ -137,7 +137,8 @@ pub trait HeightModel: Sync {
 /// one pixel to the next, plus `k` standard deviations of the difference of two
 /// measurements. It also drops the background pixels that touch a foreground edge, which
 /// costs one pixel of background along each edge.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct EdgeFilter {
     /// Shallowest angle between a viewing ray and a surface treated as a surface (rad).
     pub min_grazing_rad: f64,
@@ -198,7 +199,8 @@ pub struct DepthPixel {
 /// Paper 000's PrimeSense model (eqs. 10-12): the height variance is `r3^T Sigma_p r3` with
 /// `Sigma_p = J diag(sigma_u^2, sigma_v^2, sigma_d^2) J^T`, computed without forming the 3x3
 /// matrix: `sigma_u^2 (r3x d/fx)^2 + sigma_v^2 (r3y d/fy)^2 + sigma_d^2 (r3 . (xn, yn, 1))^2`.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct PrimeSenseHeight {
     /// The point model.
     pub model: PrimeSenseModel,

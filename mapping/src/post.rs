@@ -4,7 +4,8 @@
 use stride_core::grid::Grid;
 
 /// Parameters of [`median_filter`].
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct MedianFilter {
     /// An unknown cell with at least this many known cells among its eight neighbours is
     /// filled with their median.

@@ -50,7 +50,8 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 
 /// Parameters of [`StackMapper`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct StackConfig {
     /// Cell size (m).
     pub resolution_m: f64,
@@ -84,9 +85,11 @@ pub struct StackConfig {
     pub sensor: PrimeSenseHeight,
     /// Depth-edge (flying pixel) filter on depth images, the sensor front end that paper
     /// 000 assumes before the map ([`crate::input::EdgeFilter`]); `None` turns it off.
+    #[serde(with = "stride_core::serde_opt")]
     pub edge_filter: Option<EdgeFilter>,
     /// Paper 000's median filter applied by [`ElevationMapper::finished`] (hole filling,
     /// isolated-cell removal); `None` leaves the map as the filters left it.
+    #[serde(with = "stride_core::serde_opt")]
     pub median_filter: Option<MedianFilter>,
 }
 

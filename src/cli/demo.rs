@@ -13,8 +13,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
+use stride::config::Config;
 use stride::known_poses::{map_sequence, phantom_score, views_map, MapperRun};
-use stride::pipeline::terrain::TerrainConfig;
 use stride::run_sequence;
 use stride_core::grid::Grid;
 use stride_core::trajectory::Trajectory;
@@ -47,6 +47,9 @@ pub struct DemoArgs {
     /// Render without motion blur (about three times faster).
     #[arg(long)]
     pub no_blur: bool,
+    /// Every stage's parameters as a TOML file (see `stride config --print-defaults`).
+    #[arg(long, value_name = "FILE.toml")]
+    pub config: Option<PathBuf>,
 }
 
 fn f(v: &Value, path: &[&str]) -> f64 {
@@ -109,11 +112,17 @@ pub fn run(a: DemoArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let dir = staged.path();
-    let (config, synth, blur) = render_sequence(&a, dir)?;
+    let (synth_config, synth, blur) = render_sequence(&a, dir)?;
     let seq = TumSequence::open(&dir.join("sequence"), None, AssociationOptions::default())
         .context("opening the rendered sequence")?;
     let truth = read_grid(&dir.join("sequence/terrain.npy"), None)?;
-    let slam = run_pipeline(&a, dir, &seq)?;
+    let args = run_args(&a, dir);
+    let config = args.config()?;
+    let slam = run_pipeline(&args, &config, &seq)?;
+    let map_config = config
+        .map
+        .clone()
+        .context("the demo needs the map: not `map = false`")?;
     let map_slam = Scored::new(
         slam.map
             .as_ref()
@@ -129,10 +138,10 @@ pub fn run(a: DemoArgs) -> Result<()> {
             .filter_map(|&p| Some(slam.output.frames.get(p)?.index))
             .collect()
     });
-    let (views_layers, _) = views_map(&seq, &views, &synth.groundtruth, TerrainConfig::default())?;
+    let (views_layers, _) = views_map(&seq, &views, &synth.groundtruth, map_config.clone())?;
     let map_views_gt = Scored::new(views_layers, &truth);
     let mappers: Vec<Box<dyn ElevationMapper>> = vec![
-        Box::new(StackMapper::new(TerrainConfig::default().stack)?),
+        Box::new(StackMapper::new(map_config.stack.clone())?),
         Box::new(FankhauserMapper::new(FankhauserConfig::default())?),
     ];
     let (runs, _) = map_sequence(&seq, &synth.groundtruth, mappers, None, Some(&truth), || {})?;
@@ -144,7 +153,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
         })
         .collect();
     let st = Stages {
-        config,
+        config: synth_config,
         synth,
         blur,
         truth,
@@ -199,33 +208,40 @@ fn render_sequence(
     Ok((config, synth, blur))
 }
 
-/// Stage 2, the pipeline: the SLAM with bundle adjustment and the elevation map on its
-/// poses, its world anchored at the first ground-truth pose (as a robot starting at a
-/// known pose would be), written as `stride run` writes it.
-fn run_pipeline(a: &DemoArgs, dir: &Path, seq: &TumSequence) -> Result<RunSummary> {
-    tracing::info!("pipeline: SLAM and elevation map");
-    let args = RunArgs {
+/// The `stride run` arguments of the demo's pipeline: the SLAM with bundle adjustment,
+/// the map, the world anchored at the ground truth (as a robot starting at a known pose
+/// would be), repeatable.
+fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
+    RunArgs {
         dataset: dir.join("sequence"),
         camera: None,
         out: dir.join("slam"),
         overwrite: false,
+        config: a.config.clone(),
         no_map: false,
-        backend: BackendArg::Ba,
+        backend: Some(BackendArg::Ba),
         vo_only: false,
         free_running: false,
-        seed: a.seed,
+        seed: Some(a.seed),
         max_frames: None,
         deterministic: true,
         camera_pitch_deg: None,
         camera_height_m: None,
         world_from_groundtruth: true,
-    };
+    }
+}
+
+/// Stage 2, the pipeline: the SLAM and the elevation map on its poses, written as `stride
+/// run` writes it.
+fn run_pipeline(args: &RunArgs, config: &Config, seq: &TumSequence) -> Result<RunSummary> {
+    tracing::info!("pipeline: SLAM and elevation map");
     stride_frontend::set_opencv_threads(1)?;
-    let config = args.pipeline_config(seq)?;
     let pb = crate::cli::progress_bar(seq.len(), "pipeline", true);
-    let out = run_sequence(seq, config, None, |_| pb.inc(1))?;
+    let out = run_sequence(seq, config.pipeline(args.world_plan(seq)?), None, |_| {
+        pb.inc(1)
+    })?;
     pb.finish_and_clear();
-    write_run(&args, seq, out)
+    write_run(args, config, seq, out)
 }
 
 fn summary_json(a: &DemoArgs, st: &Stages, started: std::time::Instant) -> Value {

@@ -1,6 +1,7 @@
 //! Command-line interface: argument definitions and dispatch.
 
 mod bench;
+mod config;
 mod demo;
 mod eval;
 pub mod gates;
@@ -42,6 +43,8 @@ enum Command {
     Synth(synth::SynthArgs),
     /// The whole pipeline on the embedded synthetic sequence: render, track, map, report.
     Demo(demo::DemoArgs),
+    /// The configuration file of every stage: print the documented defaults, or check a file.
+    Config(config::ConfigArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -119,5 +122,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Run(a) => run::run(a),
         Command::Map(a) => map::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Config(a) => config::run(a),
     }
 }

@@ -7,10 +7,9 @@ use clap::Args;
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::PathBuf;
-use stride::pipeline::terrain::TerrainConfig;
+use stride::config::Config;
+use stride::pipeline::run_sequence;
 use stride::pipeline::world::WorldPlan;
-use stride::pipeline::{run_sequence, Schedule};
-use stride::PipelineConfig;
 use stride_backend::{BackendConfig, BackendMode};
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_frontend::VoConfig;
@@ -33,11 +32,15 @@ pub struct RunArgs {
     /// Poses only: no elevation map.
     #[arg(long)]
     pub no_map: bool,
+    /// Every stage's parameters as a TOML file (`stride config --print-defaults` prints
+    /// them all); the flags below override it.
+    #[arg(long, value_name = "FILE.toml")]
+    pub config: Option<PathBuf>,
     /// The back end: `ba` (feature map and bundle adjustment of poses and points), `pose-graph`
     /// (keyframe poses tied by relative motions, RGB-D SLAM v2 style) or `none` (the visual
-    /// odometry alone).
-    #[arg(long, value_enum, default_value = "ba")]
-    pub backend: BackendArg,
+    /// odometry alone) [default: the configuration's, `ba`].
+    #[arg(long, value_enum)]
+    pub backend: Option<BackendArg>,
     /// The visual odometry alone: the same as `--backend none`.
     #[arg(long)]
     pub vo_only: bool,
@@ -47,9 +50,9 @@ pub struct RunArgs {
     /// bit-identical.
     #[arg(long)]
     pub free_running: bool,
-    /// Seed of RANSAC.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    /// Seed of RANSAC [default: the configuration's, 1].
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Process at most this many frames.
     #[arg(long)]
     pub max_frames: Option<usize>,
@@ -128,47 +131,35 @@ impl RunArgs {
         }
     }
 
-    /// The back end's configuration and schedule, `None` for the odometry alone.
-    pub fn backend(&self) -> Option<(BackendConfig, Schedule)> {
-        if self.vo_only {
-            return None;
-        }
-        let mode = self.backend.mode()?;
-        let schedule = if self.free_running {
-            Schedule::Free
-        } else {
-            Schedule::Fixed {
-                lag_frames: Schedule::DEFAULT_LAG_FRAMES,
+    /// Every stage's parameters: the --config file (or the defaults), then the flags.
+    /// Without a file, the odometry alone (`--backend none`, `--vo-only`) takes
+    /// [`VoConfig::odometry_only`]'s settings.
+    pub fn config(&self) -> Result<Config> {
+        let mut c = match &self.config {
+            Some(path) => Config::load(path)?,
+            None => Config::default(),
+        };
+        let no_backend = self.vo_only || self.backend == Some(BackendArg::None);
+        if no_backend {
+            c.backend = None;
+            if self.config.is_none() {
+                c.odometry = VoConfig::odometry_only();
             }
-        };
-        let c = BackendConfig {
-            mode,
-            ..BackendConfig::default()
-        };
-        Some((c, schedule))
-    }
-
-    /// Every stage's configuration from the flags.
-    pub fn pipeline_config(&self, seq: &TumSequence) -> Result<PipelineConfig> {
-        let base = if self.backend().is_some() {
-            VoConfig::default()
-        } else {
-            VoConfig::odometry_only()
-        };
-        Ok(PipelineConfig {
-            odometry: VoConfig {
-                seed: self.seed,
-                ..base
-            },
-            backend: self.backend(),
-            world: self.world_plan(seq)?,
-            map: (!self.no_map).then(TerrainConfig::default),
-        })
-    }
-
-    /// The name of the back end for reports.
-    pub fn backend_name(&self) -> &'static str {
-        self.backend().map_or("none", |(c, _)| c.mode.as_str())
+        } else if let Some(mode) = self.backend.and_then(BackendArg::mode) {
+            let b = c.backend.get_or_insert_with(BackendConfig::default);
+            b.mode = mode;
+        }
+        if let Some(seed) = self.seed {
+            c.odometry.seed = seed;
+        }
+        if self.free_running {
+            c.schedule.free_running = true;
+        }
+        if self.no_map {
+            c.map = None;
+        }
+        c.validate()?;
+        Ok(c)
     }
 }
 
@@ -220,6 +211,7 @@ pub fn run(a: RunArgs) -> Result<()> {
 /// Runs and writes everything into `a.out`; returns the summary.
 pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
+    let config = a.config()?;
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -233,10 +225,14 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         seq.camera_source
     );
     stride_frontend::set_opencv_threads(if a.deterministic { 1 } else { 2 })?;
-    let config = a.pipeline_config(&seq)?;
     let total = a.max_frames.map_or(seq.len(), |m| m.min(seq.len()));
     let pb = crate::cli::progress_bar(total, "tracking", true);
-    let out = run_sequence(&seq, config, a.max_frames, |_| pb.inc(1))?;
+    let out = run_sequence(
+        &seq,
+        config.pipeline(a.world_plan(&seq)?),
+        a.max_frames,
+        |_| pb.inc(1),
+    )?;
     pb.finish_and_clear();
-    super::run_files::write_run(a, &seq, out)
+    super::run_files::write_run(a, &config, &seq, out)
 }

@@ -7,9 +7,10 @@ use anyhow::{Context, Result};
 use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 use std::path::Path;
+use stride::config::Config;
 use stride::known_poses::views_map;
 use stride::pipeline::world::WorldSource;
-use stride::pipeline::{median_p95, FrameStatus, RunOutput, Schedule};
+use stride::pipeline::{median_p95, FrameStatus, RunOutput};
 use stride::{MapOutput, PipelineOutput};
 use stride_datasets::grid_file::read_grid;
 use stride_datasets::trajectory_file::write_tum_trajectory;
@@ -36,7 +37,12 @@ pub struct RunSummary {
 
 /// Writes a run's results into `a.out` (staged, then published whole); fails without
 /// writing anything when no frame could be read.
-pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<RunSummary> {
+pub fn write_run(
+    a: &RunArgs,
+    config: &Config,
+    seq: &TumSequence,
+    out: PipelineOutput,
+) -> Result<RunSummary> {
     let (output, map) = (out.run, out.map);
     if output
         .frames
@@ -75,8 +81,8 @@ pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<
                 .iter()
                 .filter_map(|&p| Some(output.frames.get(p)?.index))
                 .collect();
-            let config = a.pipeline_config(seq)?.map.unwrap_or_default();
-            let (layers, _) = views_map(seq, &frames, gt, config)?;
+            let map_config = config.map.clone().unwrap_or_default();
+            let (layers, _) = views_map(seq, &frames, gt, map_config)?;
             Some(json!({
                 "against_true_terrain": terrain.as_ref().and_then(|t| compare(&layers.elevation, t)),
                 "floor": floor_fit(&layers.elevation, stride::known_poses::FLOOR_BAND_M),
@@ -103,6 +109,7 @@ pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<
         None => None,
     };
     write_frames_csv(&dir.join("frames.csv"), &output)?;
+    write_atomic(&dir.join("config.toml"), config.to_toml()?.as_bytes())?;
     if let Some(m) = &map {
         crate::cli::map::write_layers(&dir.join("map"), &m.layers)?;
     }
@@ -130,6 +137,7 @@ pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<
     };
     let mut json = report_json(
         a,
+        config,
         seq,
         &output,
         ate_r.as_ref(),
@@ -153,6 +161,7 @@ pub fn write_run(a: &RunArgs, seq: &TumSequence, out: PipelineOutput) -> Result<
         terrain: terrain.as_ref(),
         ate: ate_r.as_ref(),
         rpe: rpe_r.as_ref(),
+        config_toml: &config.to_toml()?,
     };
     super::run_report::write_html(dir, &page)?;
     staged
@@ -220,6 +229,7 @@ fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
 
 fn report_json(
     a: &RunArgs,
+    config: &Config,
     seq: &TumSequence,
     out: &RunOutput,
     at: Option<&AteResult>,
@@ -272,7 +282,10 @@ fn report_json(
         json!({"frames": waits.len(), "total_ms": waits.iter().sum::<f64>() * 1e3}),
     );
     m.insert("timing_ms".into(), Value::Object(timing));
-    m.insert("backend".into(), json!(a.backend_name()));
+    m.insert(
+        "backend".into(),
+        json!(config.backend.as_ref().map_or("none", |b| b.mode.as_str())),
+    );
     let (roll_deg, pitch_deg, height_m) = out.world.first_camera_attitude();
     m.insert(
         "world_frame".into(),
@@ -311,29 +324,19 @@ fn report_json(
         );
         m.insert(
             "schedule".into(),
-            json!(if a.free_running { "free" } else { "fixed" }),
-        );
-        let c = &b.config;
-        m.insert(
-            "backend_config".into(),
-            json!({
-                "window_keyframes": c.window_keyframes,
-                "max_fixed_keyframes": c.max_fixed_keyframes,
-                "local_iterations": c.local_iterations,
-                "final_iterations": c.final_iterations,
-                "min_reobserved": c.min_reobserved,
-                "model_noise_m": c.model_noise_m,
-                "depth_noise_scale": c.depth_noise_scale,
-                "huber_chi2": c.huber_chi2,
-                "outlier_chi2": c.outlier_chi2,
-                "match_max_hamming": c.matching.max_hamming,
-                "match_ratio": c.matching.ratio,
-                "match_chi2_gate": c.matching.chi2_gate,
-                "sync_lag_frames": Schedule::DEFAULT_LAG_FRAMES,
+            json!(if config.schedule.free_running {
+                "free"
+            } else {
+                "fixed"
             }),
         );
     }
-    m.insert("seed".into(), json!(a.seed));
+    m.insert("seed".into(), json!(config.odometry.seed));
+    // Every stage's parameters, as config.toml beside this report holds them.
+    m.insert(
+        "config".into(),
+        serde_json::to_value(config).unwrap_or(Value::Null),
+    );
     m.insert("dataset".into(), json!(a.dataset.display().to_string()));
     m.insert("camera".into(), json!(seq.camera_source.to_string()));
     if let Some(at) = at {

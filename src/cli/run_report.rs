@@ -63,6 +63,8 @@ pub struct RunPage<'a> {
     pub ate: Option<&'a AteResult>,
     /// RPE against ground truth.
     pub rpe: Option<&'a RpeResult>,
+    /// The configuration used, as TOML.
+    pub config_toml: &'a str,
 }
 
 /// Writes report.html (self-contained) and report.md into `dir`.
@@ -129,7 +131,7 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
         "Dataset {}; {} frames; seed {}. World frame: {}.",
         a.dataset.display(),
         out.frames.len(),
-        a.seed,
+        j["seed"],
         out.world.describe()
     ));
     // A report value as text (strings without JSON's quotes).
@@ -290,17 +292,8 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
     ];
     rep.figure("tracking", render(&per_frame, 2, 560.0, 360.0), "Left: keypoints tracked and RANSAC inliers per frame, failures marked. Right: processing time per frame.");
     rep.heading("Configuration");
-    let config: serde_json::Map<String, Value> = [
-        "seed",
-        "backend",
-        "schedule",
-        "backend_config",
-        "world_frame",
-    ]
-    .iter()
-    .filter_map(|k| Some(((*k).to_owned(), j.get(*k)?.clone())))
-    .collect();
-    rep.code(serde_json::to_string_pretty(&config)?);
+    rep.paragraph("Every stage's parameters (config.toml beside this report; `stride run --config config.toml` repeats the run).");
+    rep.code(page.config_toml);
     rep.write(dir)
         .with_context(|| format!("writing the report into {}", dir.display()))?;
     Ok(())

@@ -45,11 +45,19 @@ pub enum PipelineError {
     #[error("configuration: {key} = {value}: {allowed}")]
     Config {
         /// The key, as in the TOML configuration (`section.name`).
-        key: &'static str,
+        key: String,
         /// The value given.
         value: String,
         /// What is allowed.
         allowed: &'static str,
+    },
+    /// A configuration file could not be read or parsed (an unknown key, a wrong type).
+    #[error("configuration {path}: {message}")]
+    ConfigFile {
+        /// The file.
+        path: String,
+        /// What is wrong, with the line.
+        message: String,
     },
     /// Frames came out of time order, so no trajectory can be made of them.
     #[error("frame {index} at {t_s:.6} s: {source}")]

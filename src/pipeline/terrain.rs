@@ -21,10 +21,11 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 use stride_mapping::input::{Rejections, SensorFrame};
 use stride_mapping::stack::{StackConfig, StackMapper};
-use stride_mapping::{ElevationMapper, MapLayers};
+use stride_mapping::{ElevationMapper, MapLayers, MappingError};
 
 /// The elevation map's place in the pipeline: which pixels it takes and when it rebuilds.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct TerrainConfig {
     /// The voxel-stack mapper's parameters (paper 000): resolution, window, checks.
     pub stack: StackConfig,
@@ -61,9 +62,9 @@ impl Default for TerrainConfig {
 impl TerrainConfig {
     /// Checks every value (the stack mapper's included); the error names the key.
     pub fn validate(&self) -> Result<(), PipelineError> {
-        let bad = |key, value: String, allowed| {
+        let bad = |key: &str, value: String, allowed| {
             Err(PipelineError::Config {
-                key,
+                key: key.to_owned(),
                 value,
                 allowed,
             })
@@ -95,8 +96,15 @@ impl TerrainConfig {
                 "1 to 1000",
             );
         }
-        self.stack.validate()?;
-        Ok(())
+        match self.stack.validate() {
+            Ok(_) => Ok(()),
+            Err(MappingError::Parameter {
+                name,
+                value,
+                reason,
+            }) => bad(&format!("map.stack.{name}"), value.to_string(), reason),
+            Err(e) => Err(e.into()),
+        }
     }
 }
 
@@ -167,7 +175,7 @@ impl Terrain {
             camera.height().div_ceil(config.decimation),
         )
         .map_err(|e| PipelineError::Config {
-            key: "map.decimation",
+            key: "map.decimation".into(),
             value: format!("{} ({e})", config.decimation),
             allowed: "small enough to leave an image",
         })?;
@@ -175,7 +183,7 @@ impl Terrain {
             Some(&dist) => small
                 .with_distortion(dist)
                 .map_err(|e| PipelineError::Config {
-                    key: "camera.distortion",
+                    key: "camera.distortion".into(),
                     value: e.to_string(),
                     allowed: "finite coefficients",
                 })?,

@@ -1,0 +1,180 @@
+//! One configuration for every stage, as a TOML file: `stride config --print-defaults`
+//! prints the defaults with what each key means ([`DEFAULTS_TOML`]); `stride run --config
+//! FILE` reads one. Every key may be left out (its default applies); an unknown key, a wrong
+//! type or a value out of range is an error that names the key.
+
+use crate::pipeline::terrain::TerrainConfig;
+use crate::pipeline::world::WorldPlan;
+use crate::pipeline::{PipelineConfig, PipelineError, Schedule};
+use serde::{Deserialize, Serialize};
+use stride_backend::{BackendConfig, BackendError};
+use stride_frontend::{FrontendError, VoConfig};
+
+/// The defaults, documented key by key: what `stride config --print-defaults` prints. A
+/// test checks that it parses to [`Config::default`] and holds every key.
+pub const DEFAULTS_TOML: &str = include_str!("defaults.toml");
+
+/// Every stage's parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// The visual odometry.
+    pub odometry: VoConfig,
+    /// The back end; `None` (`backend = false`) for the odometry alone.
+    #[serde(with = "stride_core::serde_opt")]
+    pub backend: Option<BackendConfig>,
+    /// When the odometry applies the back end's corrections.
+    pub schedule: ScheduleConfig,
+    /// The elevation map; `None` (`map = false`) for poses only.
+    #[serde(with = "stride_core::serde_opt")]
+    pub map: Option<TerrainConfig>,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            odometry: VoConfig::default(),
+            backend: Some(BackendConfig::default()),
+            schedule: ScheduleConfig::default(),
+            map: Some(TerrainConfig::default()),
+        }
+    }
+}
+
+/// When the odometry applies the back end's corrections ([`Schedule`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScheduleConfig {
+    /// As soon as they are ready (results then depend on thread timing).
+    pub free_running: bool,
+    /// Otherwise exactly this many frames after their keyframe (repeatable).
+    pub lag_frames: usize,
+}
+
+impl Default for ScheduleConfig {
+    fn default() -> Self {
+        Self {
+            free_running: false,
+            lag_frames: Schedule::DEFAULT_LAG_FRAMES,
+        }
+    }
+}
+
+impl ScheduleConfig {
+    /// The schedule this describes.
+    pub fn schedule(&self) -> Schedule {
+        if self.free_running {
+            Schedule::Free
+        } else {
+            Schedule::Fixed {
+                lag_frames: self.lag_frames,
+            }
+        }
+    }
+}
+
+/// A TOML parse error on one line: its position (the first line of the parser's message)
+/// and what is wrong (the last), without the source excerpt between them.
+fn parse_message(full: &str) -> String {
+    let lines: Vec<&str> = full.lines().filter(|l| !l.trim().is_empty()).collect();
+    match (lines.first(), lines.last()) {
+        (Some(first), Some(last)) if lines.len() > 1 => format!("{first}: {last}"),
+        _ => full.trim().to_owned(),
+    }
+}
+
+/// An out-of-range error for `key`.
+fn out_of_range(key: String, value: String, allowed: &'static str) -> PipelineError {
+    PipelineError::Config {
+        key,
+        value,
+        allowed,
+    }
+}
+
+impl Config {
+    /// Parses a TOML configuration (the text of `path`, named in errors) and checks every
+    /// value.
+    pub fn from_toml(text: &str, path: &str) -> Result<Self, PipelineError> {
+        let config: Config = toml::from_str(text).map_err(|e| PipelineError::ConfigFile {
+            path: path.to_owned(),
+            message: parse_message(&e.to_string()),
+        })?;
+        config.validate().map_err(|e| match e {
+            PipelineError::Config {
+                key,
+                value,
+                allowed,
+            } => PipelineError::ConfigFile {
+                path: path.to_owned(),
+                message: format!("{key} = {value}: {allowed}"),
+            },
+            other => other,
+        })?;
+        Ok(config)
+    }
+
+    /// Reads and checks the configuration file at `path`.
+    pub fn load(path: &std::path::Path) -> Result<Self, PipelineError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| PipelineError::ConfigFile {
+            path: name.clone(),
+            message: e.to_string(),
+        })?;
+        Self::from_toml(&text, &name)
+    }
+
+    /// The configuration as TOML (every key, the values in use).
+    pub fn to_toml(&self) -> Result<String, PipelineError> {
+        toml::to_string(self).map_err(|e| PipelineError::ConfigFile {
+            path: "(writing)".into(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Checks every value; the error names the key (`section.name`) and what is allowed.
+    pub fn validate(&self) -> Result<(), PipelineError> {
+        self.odometry.validate().map_err(|e| match e {
+            FrontendError::Parameter {
+                name,
+                value,
+                allowed,
+            } => out_of_range(format!("odometry.{name}"), value, allowed),
+            other => PipelineError::Odometry(other),
+        })?;
+        if let Some(b) = &self.backend {
+            b.validate().map_err(|e| match e {
+                BackendError::Config {
+                    name,
+                    value,
+                    allowed,
+                } => out_of_range(format!("backend.{name}"), value, allowed),
+                other => PipelineError::Backend(other),
+            })?;
+        }
+        if !(0..=100).contains(&self.schedule.lag_frames) {
+            return Err(out_of_range(
+                "schedule.lag_frames".into(),
+                self.schedule.lag_frames.to_string(),
+                "0 to 100 frames",
+            ));
+        }
+        if let Some(m) = &self.map {
+            m.validate()?;
+        }
+        Ok(())
+    }
+
+    /// The pipeline's configuration, with its world frame found by `world`.
+    pub fn pipeline(&self, world: WorldPlan) -> PipelineConfig {
+        PipelineConfig {
+            odometry: self.odometry.clone(),
+            backend: self.backend.clone().map(|b| (b, self.schedule.schedule())),
+            world,
+            map: self.map.clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,124 @@
+//! The defaults file is the defaults, every key is in it, and bad files are refused by key.
+
+use super::*;
+
+/// The keys of a TOML table, recursively, as `section.sub.key`.
+fn keys(v: &toml::Value, prefix: &str, out: &mut Vec<String>) {
+    if let toml::Value::Table(t) = v {
+        for (k, v) in t {
+            let key = if prefix.is_empty() {
+                k.clone()
+            } else {
+                format!("{prefix}.{k}")
+            };
+            keys(v, &key, out);
+            out.push(key);
+        }
+    }
+}
+
+#[test]
+fn the_documented_defaults_are_the_defaults_and_hold_every_key() {
+    let parsed = Config::from_toml(DEFAULTS_TOML, "defaults.toml").unwrap();
+    assert_eq!(parsed, Config::default());
+    let mut documented = Vec::new();
+    keys(&toml::from_str(DEFAULTS_TOML).unwrap(), "", &mut documented);
+    let mut all = Vec::new();
+    let written = Config::default().to_toml().unwrap();
+    keys(&toml::from_str(&written).unwrap(), "", &mut all);
+    documented.sort();
+    all.sort();
+    assert_eq!(documented, all);
+    assert!(all.len() > 90, "{} keys", all.len());
+    // What a run writes reads back to the same configuration.
+    assert_eq!(
+        Config::from_toml(&written, "written").unwrap(),
+        Config::default()
+    );
+}
+
+#[test]
+fn a_partial_file_keeps_the_other_defaults_and_false_turns_stages_off() {
+    let c = Config::from_toml(
+        "backend = false\n[map.stack]\nresolution_m = 0.02\nedge_filter = false\n[odometry]\nseed = 7\n",
+        "partial.toml",
+    )
+    .unwrap();
+    assert!(c.backend.is_none());
+    assert_eq!(c.odometry.seed, 7);
+    assert_eq!(
+        c.odometry.target_features,
+        VoConfig::default().target_features
+    );
+    let map = c.map.unwrap();
+    assert_eq!(map.stack.resolution_m, 0.02);
+    assert!(map.stack.edge_filter.is_none() && map.stack.median_filter.is_some());
+    assert_eq!(map.every_frames, TerrainConfig::default().every_frames);
+    let no_map = Config::from_toml("map = false\n", "m.toml").unwrap();
+    assert!(no_map.map.is_none() && no_map.backend.is_some());
+}
+
+#[test]
+fn an_unknown_key_is_named_with_its_line() {
+    let err = Config::from_toml("[odometry]\nseed = 1\ntarget_feature = 500\n", "typo.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("typo.toml") && err.contains("target_feature") && err.contains("line 3"),
+        "{err}"
+    );
+    let err = Config::from_toml("[mapping]\n", "section.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("mapping"), "{err}");
+    let err = Config::from_toml("[odometry]\nseed = \"one\"\n", "type.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("seed") || err.contains("line 2"), "{err}");
+    // Inside a table that can be turned off, the table's own errors come through.
+    let err = Config::from_toml("[map.stack.edge_filter]\nsigma = 3.0\n", "inner.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("sigma") && err.contains("line 2"), "{err}");
+    let err = Config::from_toml("[map.stack]\nedge_filter = true\n", "on.toml")
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("`false` to turn it off"), "{err}");
+}
+
+#[test]
+fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
+    for (text, key, allowed) in [
+        (
+            "[odometry]\nklt_levels = 12\n",
+            "odometry.klt_levels",
+            "0 to 8",
+        ),
+        (
+            "[odometry.inlier_test]\nkind = \"euclidean\"\nmax_m = -1.0\n",
+            "odometry.inlier_test.max_m",
+            "positive",
+        ),
+        (
+            "[backend]\nwindow_keyframes = 1\n",
+            "backend.window_keyframes",
+            ">= 2",
+        ),
+        ("[map]\ndecimation = 0\n", "map.decimation", "1 to 8"),
+        (
+            "[map.stack]\nresolution_m = 0.0\n",
+            "map.stack.resolution_m",
+            "positive",
+        ),
+        (
+            "[schedule]\nlag_frames = 1000\n",
+            "schedule.lag_frames",
+            "0 to 100",
+        ),
+    ] {
+        let err = Config::from_toml(text, "range.toml")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains(key) && err.contains(allowed), "{text}: {err}");
+    }
+}
