@@ -129,7 +129,7 @@ pub fn map_sequence(
 /// The pipeline's elevation map made from the same views with other poses (ground truth,
 /// to separate the SLAM's part of a map's error from the mapper's): each frame of `frames`
 /// (indices in `seq`) loaded and mapped at `poses` (world frame, z up) interpolated at its
-/// colour image's time, as [`crate::Pipeline`] maps its views. Returns the map and the
+/// depth image's time, as [`crate::Pipeline`] maps its views. Returns the map and the
 /// number of frames outside the poses' time span (left out).
 pub fn views_map(
     seq: &TumSequence,
@@ -142,7 +142,7 @@ pub fn views_map(
     let mut outside = 0;
     for (position, &index) in frames.iter().enumerate() {
         let frame = seq.load_frame(index)?;
-        let Some(pose) = poses.interpolate(frame.t_s) else {
+        let Some(pose) = poses.interpolate(frame.t_depth_s) else {
             outside += 1;
             continue;
         };

@@ -14,6 +14,7 @@
 //!   synthetic ground truth and the elevation mapper.
 //! * [`synth`]: the synthetic legged-robot RGB-D generator with ground truth.
 
+pub mod accelerometer;
 pub mod camera_config;
 pub mod error;
 pub mod grid_file;

@@ -1,7 +1,8 @@
 //! TUM RGB-D sequence folders.
 //!
 //! A folder holds `rgb/` and `depth/` PNGs listed with their timestamps in `rgb.txt` and
-//! `depth.txt` (`timestamp filename` per line), and optionally `groundtruth.txt` (a TUM
+//! `depth.txt` (`timestamp filename` per line), optionally `accelerometer.txt` (see
+//! [`crate::accelerometer`]), and optionally `groundtruth.txt` (a TUM
 //! trajectory) and `camera.json` (a camera file, see [`crate::camera_config`]).
 //!
 //! Colour and depth images are associated as TUM's `associate.py` does (greedy, one-to-one,
@@ -89,6 +90,9 @@ pub struct TumSequence {
     pub frames: Vec<FrameEntry>,
     /// `groundtruth.txt` (poses `world_from_camera`), when the folder has one.
     pub groundtruth: Option<Trajectory>,
+    /// `accelerometer.txt` (specific force in the camera frame, see
+    /// [`crate::accelerometer`]), when the folder has one.
+    pub accelerometer: Option<Vec<crate::accelerometer::AccelSample>>,
     /// Colour images left without a depth partner.
     pub unmatched_rgb: usize,
 }
@@ -237,6 +241,12 @@ impl TumSequence {
         } else {
             None
         };
+        let accel_path = dir.join("accelerometer.txt");
+        let accelerometer = if accel_path.is_file() {
+            Some(crate::accelerometer::read_accelerometer(&accel_path)?)
+        } else {
+            None
+        };
         Ok(Self {
             dir: dir.to_path_buf(),
             camera,
@@ -244,6 +254,7 @@ impl TumSequence {
             unmatched_rgb: rgb.len() - frames.len(),
             frames,
             groundtruth,
+            accelerometer,
         })
     }
 

@@ -228,6 +228,7 @@ fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
         camera_pitch_deg: None,
         camera_height_m: None,
         world_from_groundtruth: true,
+        ignore_accelerometer: false,
     }
 }
 

@@ -77,6 +77,11 @@ pub struct RunArgs {
     /// folder's true terrain (terrain.npy) when it has one.
     #[arg(long, conflicts_with = "camera_pitch_deg")]
     pub world_from_groundtruth: bool,
+    /// Find the world's z axis from the floor alone, even when the folder has an
+    /// accelerometer.txt (by default its mean reading gives the z axis, the floor the
+    /// height).
+    #[arg(long)]
+    pub ignore_accelerometer: bool,
 }
 
 /// The back end to run.
@@ -102,8 +107,8 @@ impl BackendArg {
 }
 
 impl RunArgs {
-    /// How the run finds its gravity-aligned world frame: the given mounting, else the
-    /// floor.
+    /// How the run finds its gravity-aligned world frame: the ground truth when asked, the
+    /// given mounting, else the accelerometer when the folder has one, else the floor.
     pub fn world_plan(&self, seq: &TumSequence) -> Result<WorldPlan> {
         if self.world_from_groundtruth {
             let gt = seq.groundtruth.as_ref().with_context(|| {
@@ -127,7 +132,12 @@ impl RunArgs {
                     height_m,
                 })
             }
-            _ => Ok(WorldPlan::Floor),
+            _ => Ok(match &seq.accelerometer {
+                Some(samples) if !self.ignore_accelerometer => {
+                    WorldPlan::Accelerometer(samples.clone())
+                }
+                _ => WorldPlan::Floor,
+            }),
         }
     }
 

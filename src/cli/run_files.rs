@@ -292,6 +292,7 @@ fn report_json(
         json!({
             "source": match out.world.source {
                 WorldSource::Floor { .. } => "floor",
+                WorldSource::Accelerometer { .. } => "accelerometer",
                 WorldSource::Mounting => "mounting",
                 WorldSource::Reference => "reference trajectory",
                 WorldSource::FirstCamera => "first camera",

@@ -38,6 +38,8 @@ pub struct Slam {
     world: Option<WorldFrame>,
     /// The reference trajectory that gives the world, when one does.
     reference: Option<stride_core::trajectory::Trajectory>,
+    /// The accelerometer's samples that give the world's z axis, when they do.
+    accelerometer: Option<Vec<stride_datasets::accelerometer::AccelSample>>,
     /// Floors seen (camera coordinates) and their inlier counts, by frame position: the
     /// world frame is made of them at the end, with the frames' final poses.
     floors: Vec<(usize, Plane, usize)>,
@@ -79,6 +81,7 @@ impl Slam {
             coupling,
             world: None,
             reference: None,
+            accelerometer: None,
             floors: Vec::new(),
             frames: Vec::new(),
             vo_wall_s: 0.0,
@@ -96,6 +99,10 @@ impl Slam {
             } => Some(WorldFrame::from_mounting(pitch_deg, height_m)),
             WorldPlan::Reference(trajectory) => {
                 self.reference = Some(trajectory);
+                None
+            }
+            WorldPlan::Accelerometer(samples) => {
+                self.accelerometer = Some(samples);
                 None
             }
         };
@@ -252,14 +259,34 @@ impl Slam {
         if self.frames.len() < world::FLOOR_SEARCH_FRAMES {
             return None;
         }
+        let poses: Vec<_> = self
+            .frames
+            .iter()
+            .map(|f| f.live_world_from_camera)
+            .collect();
+        self.world_at(&self.frames, &poses)
+    }
+
+    /// The world frame from the floors and the accelerometer (when there is one) with the
+    /// `frames`' poses `poses` (SLAM frame, one per frame).
+    fn world_at(&self, frames: &[FrameRecord], poses: &[Isometry3<f64>]) -> Option<WorldFrame> {
         let floors: Vec<_> = self
             .floors
             .iter()
-            .filter_map(|&(i, plane, n)| {
-                Some((self.frames.get(i)?.live_world_from_camera, plane, n))
-            })
+            .filter_map(|&(i, plane, n)| Some((*poses.get(i)?, plane, n)))
             .collect();
-        WorldFrame::from_floors(&floors)
+        match &self.accelerometer {
+            Some(samples) => {
+                let frames: Vec<(f64, Isometry3<f64>)> = frames
+                    .iter()
+                    .zip(poses)
+                    .filter(|(f, _)| f.status != FrameStatus::Skipped)
+                    .map(|(f, p)| (f.t_s, *p))
+                    .collect();
+                WorldFrame::from_accelerometer(samples, &frames, &floors)
+            }
+            None => WorldFrame::from_floors(&floors),
+        }
     }
 
     /// Keeps `record` as the next frame's and returns a copy for the caller.
@@ -270,11 +297,11 @@ impl Slam {
 
     /// Waits for the back end, runs its final optimization, and returns everything in the
     /// world frame.
-    pub fn finish(self) -> Result<RunOutput, PipelineError> {
+    pub fn finish(mut self) -> Result<RunOutput, PipelineError> {
         let start = Instant::now();
-        let backend = self.coupling.map(finish_backend).transpose()?;
+        let backend = self.coupling.take().map(finish_backend).transpose()?;
         let mut out = RunOutput {
-            frames: self.frames,
+            frames: std::mem::take(&mut self.frames),
             vo_wall_s: self.vo_wall_s,
             wall_s: 0.0,
             backend,
@@ -287,12 +314,7 @@ impl Slam {
                 let known = frames.filter(|(f, _)| f.status != FrameStatus::Skipped);
                 return WorldFrame::from_reference(r, known.map(|(f, p)| (f.t_s, *p)));
             }
-            let floors: Vec<_> = self
-                .floors
-                .iter()
-                .filter_map(|&(i, plane, n)| Some((*poses.get(i)?, plane, n)))
-                .collect();
-            WorldFrame::from_floors(&floors)
+            self.world_at(&out.frames, &poses)
         });
         out.world = world.unwrap_or_else(|| {
             tracing::warn!(

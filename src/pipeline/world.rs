@@ -1,14 +1,20 @@
 //! The world frame of every output: z up (gravity-aligned), metres. The SLAM runs in the
 //! frame of its first camera (x right, y down, z forward); `world_from_slam` places that
-//! frame in the world. Its attitude comes from, in this order of preference:
+//! frame in the world. Its attitude comes from, in this order of preference
+//! ([`WorldPlan`]):
 //!
-//! 1. the floor: a RANSAC plane in the depth of the first frames and of every keyframe (a
+//! 1. a reference trajectory, when asked (the ground truth, to score against a true
+//!    terrain): the first frame it covers gets its pose;
+//! 2. a given mounting (`--camera-pitch-deg`, `--camera-height-m`): the camera pitched down
+//!    by that angle, that high above the ground, without roll;
+//! 3. an accelerometer (`accelerometer.txt`): world z is the mean specific force, each
+//!    sample rotated into the SLAM's frame by its frame's pose, so that the walk's own
+//!    accelerations average out; the floor, when seen, gives the height;
+//! 4. the floor: a RANSAC plane in the depth of the first frames and of every keyframe (a
 //!    walking robot's camera sees the ground), placed by their final poses and averaged;
 //!    world z is the floor's normal, the floor is at z = 0, and world x is the first
 //!    camera's forward direction along the floor;
-//! 2. a given mounting (`--camera-pitch-deg`, `--camera-height-m`): the camera pitched down
-//!    by that angle, that high above the ground, without roll;
-//! 3. otherwise the first camera's frame itself, which is not gravity-aligned: the run
+//! 5. otherwise the first camera's frame itself, which is not gravity-aligned: the run
 //!    says so (a warning and `world_frame.source = "first camera"` in report.json).
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -16,6 +22,7 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 use stride_core::plane::{ransac_plane, Plane};
 use stride_core::rng::SplitMix64;
+use stride_datasets::accelerometer::AccelSample;
 
 /// The floor is looked for in every one of the first frames (then in keyframes only).
 pub const FLOOR_SEARCH_FRAMES: usize = 10;
@@ -43,6 +50,13 @@ pub enum WorldSource {
         /// Sampled depth points on the floor, over those frames.
         inliers: usize,
     },
+    /// The mean specific force of an accelerometer (its height from the floor, when seen).
+    Accelerometer {
+        /// Samples averaged.
+        samples: usize,
+        /// Frames whose depth gave a floor (for the height).
+        floor_frames: usize,
+    },
     /// The mounting given by the user.
     Mounting,
     /// A reference trajectory (ground truth, or a robot's own state estimate): the pose
@@ -66,6 +80,8 @@ pub enum WorldPlan {
         /// Height of the camera above the ground (m).
         height_m: f64,
     },
+    /// From an accelerometer's samples (camera frame), the floor giving the height.
+    Accelerometer(Vec<AccelSample>),
     /// The world of a reference trajectory (`world_from_camera`, z up): the first frame
     /// within its time span gets the reference's pose there.
     Reference(stride_core::trajectory::Trajectory),
@@ -143,26 +159,63 @@ impl WorldFrame {
         }
         let z_w = up.try_normalize(1e-9)?;
         let height_m = height_m / floors.len() as f64;
-        let forward = Vector3::z();
-        let image_up = -Vector3::y();
-        let x_w = (forward - z_w * z_w.dot(&forward))
-            .try_normalize(1e-6)
-            .or_else(|| (image_up - z_w * z_w.dot(&image_up)).try_normalize(1e-9))?;
-        let y_w = z_w.cross(&x_w);
-        // Rows of world_from_slam's rotation are the world axes in the SLAM's coordinates.
-        let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
-            x_w.transpose(),
-            y_w.transpose(),
-            z_w.transpose(),
-        ]));
         Some(Self {
-            world_from_slam: Isometry3::from_parts(
-                Translation3::new(0.0, 0.0, height_m),
-                UnitQuaternion::from_rotation_matrix(&rotation),
-            ),
+            world_from_slam: world_from_up(z_w, height_m)?,
             source: WorldSource::Floor {
                 frames: floors.len(),
                 inliers,
+            },
+        })
+    }
+
+    /// The world of an accelerometer: world z is the mean specific force of `samples`
+    /// (camera frame, see `stride_datasets::accelerometer`), each rotated into the SLAM's
+    /// frame by the pose of the frame nearest in time (`frames`: `(t_s, slam_from_camera)`
+    /// in time order); over a walk the robot's own accelerations average out and gravity's
+    /// reaction, up, remains. The first camera's height comes from `floors` when there are
+    /// some (as [`WorldFrame::from_floors`]), else it is 0. `None` without samples within
+    /// the frames' time span (and 50 ms around it).
+    pub fn from_accelerometer(
+        samples: &[AccelSample],
+        frames: &[(f64, Isometry3<f64>)],
+        floors: &[(Isometry3<f64>, Plane, usize)],
+    ) -> Option<Self> {
+        const MARGIN_S: f64 = 0.05;
+        let (first, last) = (frames.first()?.0, frames.last()?.0);
+        let mut sum = Vector3::zeros();
+        let mut used = 0;
+        for (t, f) in samples {
+            if *t < first - MARGIN_S || *t > last + MARGIN_S {
+                continue;
+            }
+            let i = frames.partition_point(|(ft, _)| ft < t);
+            let nearest = [i.checked_sub(1), Some(i)]
+                .into_iter()
+                .flatten()
+                .filter_map(|k| frames.get(k))
+                .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))?;
+            sum += nearest.1.rotation * f;
+            used += 1;
+        }
+        let z_w = sum.try_normalize(1e-9)?;
+        let height_m = if floors.is_empty() {
+            0.0
+        } else {
+            floors
+                .iter()
+                .map(|(slam_from_camera, floor, _)| {
+                    let normal = slam_from_camera.rotation * floor.normal.into_inner();
+                    floor.distance_m(&Point3::origin())
+                        - normal.dot(&slam_from_camera.translation.vector)
+                })
+                .sum::<f64>()
+                / floors.len() as f64
+        };
+        Some(Self {
+            world_from_slam: world_from_up(z_w, height_m)?,
+            source: WorldSource::Accelerometer {
+                samples: used,
+                floor_frames: floors.len(),
             },
         })
     }
@@ -174,6 +227,12 @@ impl WorldFrame {
             WorldSource::Floor { frames, inliers } => {
                 format!("the floor seen in {frames} frames ({inliers} depth points)")
             }
+            WorldSource::Accelerometer {
+                samples,
+                floor_frames,
+            } => format!(
+                "the accelerometer ({samples} samples; height from the floor in {floor_frames} frames)"
+            ),
             WorldSource::Mounting => "the given camera mounting".into(),
             WorldSource::Reference => {
                 "the reference trajectory (its pose of the first frame it covers)".into()
@@ -226,6 +285,28 @@ pub fn floor_in_camera(depth: &DepthImage, camera: &PinholeCamera) -> Option<(Pl
     let (plane, inliers) = ransac_plane(&points, FLOOR_THRESHOLD_M, 150, &mut rng, below)?;
     ((inliers as f64) >= FLOOR_MIN_FRACTION * points.len() as f64)
         .then(|| (plane.facing(&Point3::origin()), inliers))
+}
+
+/// `world_from_slam` for a world whose z axis is `z_w` (unit, SLAM coordinates), whose x
+/// axis is the first camera's forward direction along the floor (its image's up direction
+/// when it looks straight down), with the SLAM's origin `height_m` above the world's.
+fn world_from_up(z_w: Vector3<f64>, height_m: f64) -> Option<Isometry3<f64>> {
+    let forward = Vector3::z();
+    let image_up = -Vector3::y();
+    let x_w = (forward - z_w * z_w.dot(&forward))
+        .try_normalize(1e-6)
+        .or_else(|| (image_up - z_w * z_w.dot(&image_up)).try_normalize(1e-9))?;
+    let y_w = z_w.cross(&x_w);
+    // Rows of world_from_slam's rotation are the world axes in the SLAM's coordinates.
+    let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+        x_w.transpose(),
+        y_w.transpose(),
+        z_w.transpose(),
+    ]));
+    Some(Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, height_m),
+        UnitQuaternion::from_rotation_matrix(&rotation),
+    ))
 }
 
 #[cfg(test)]

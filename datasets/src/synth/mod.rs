@@ -33,6 +33,13 @@ pub use config::{SynthConfig, SynthError, TerrainSource};
 pub use output::{generate, SynthSummary};
 
 use motion::{Motion, TrunkState};
+
+/// Standard gravity (m/s²).
+pub const GRAVITY_M_S2: f64 = 9.80665;
+/// Accelerometer samples per second written by the lab.
+pub const ACCELEROMETER_HZ: f64 = 100.0;
+/// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
+pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
 use nalgebra::Isometry3;
 use render::{depth_sensor, rgb_sensor, Renderer};
 use scene::Scene;
@@ -160,6 +167,21 @@ impl Synth {
     pub fn state(&self, t: f64) -> TrunkState {
         let hf = &self.scene.terrain;
         self.motion.state(t, &|x, y| hf.height(x, y))
+    }
+
+    /// What an accelerometer on the camera reads `t` seconds after the first frame: the
+    /// specific force (the camera's acceleration minus gravity, m/s²) in the camera frame
+    /// (x right, y down, z forward), from central differences of the motion over 5 ms.
+    pub fn specific_force(&self, t: f64) -> nalgebra::Vector3<f64> {
+        const H_S: f64 = 0.005;
+        let at = |t: f64| self.state(t).world_from_camera;
+        let t = t.max(H_S);
+        let (a, b, c) = (at(t - H_S), at(t), at(t + H_S));
+        let acceleration = (a.translation.vector - 2.0 * b.translation.vector
+            + c.translation.vector)
+            / (H_S * H_S);
+        let f_world = acceleration + nalgebra::Vector3::new(0.0, 0.0, GRAVITY_M_S2);
+        b.rotation.inverse() * f_world
     }
 
     /// A renderer for this scene.
