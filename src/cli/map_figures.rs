@@ -9,13 +9,14 @@ use stride_eval::plot::{nice_ticks, Chart, Raster, Series, PALETTE};
 /// Largest side of an embedded map image (pixels).
 const MAX_SIDE_PX: usize = 800;
 
-/// A scale bar near the lower-left corner of `extent` (x_min, x_max, y_min, y_max; m): a
-/// round length about a fifth of the width, as a labelled series.
+/// A scale bar just below the lower-left corner of `extent` (x_min, x_max, y_min, y_max;
+/// m), off the map so that it shows on any colour: a round length about a fifth of the
+/// width, as a labelled series.
 fn scale_bar(extent: (f64, f64, f64, f64)) -> Series {
     let (x0, x1, y0, y1) = extent;
     let (ticks, step) = nice_ticks(0.0, (x1 - x0) / 5.0, 2);
     let length = ticks.last().copied().filter(|l| *l > 0.0).unwrap_or(step);
-    let (x, y) = (x0 + 0.05 * (x1 - x0), y0 + 0.05 * (y1 - y0));
+    let (x, y) = (x0 + 0.05 * (x1 - x0), y0 - 0.05 * (y1 - y0));
     let label = if length >= 1.0 {
         format!("scale bar: {length} m")
     } else {
