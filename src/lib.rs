@@ -9,6 +9,8 @@
 //!   keyframes at their optimized poses.
 //! * [`config`]: every stage's parameters as one TOML file, with documented defaults and
 //!   validation that names the key.
+//! * [`eval_suite`]: trajectory evaluation for CI: suites of entries with limits, JUnit XML,
+//!   Markdown summaries, comparisons between results.
 //! * [`known_poses`]: elevation maps of a recorded sequence with known poses (ground truth
 //!   or a trajectory file), several mappers side by side, scored against the true terrain.
 //!
@@ -20,6 +22,7 @@
 //! metres, cameras with x right, y down, z forward. See ARCHITECTURE.md.
 
 pub mod config;
+pub mod eval_suite;
 pub mod known_poses;
 pub mod pipeline;
 

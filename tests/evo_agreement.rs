@@ -174,3 +174,93 @@ fn every_statistic_agrees_with_evo() {
         compare(&format!("RPE {e} {delta}{unit} all={all}"), &ours, &evo);
     }
 }
+
+#[test]
+fn a_suite_reproduces_evo_for_each_entry_and_its_junit_xml_parses() {
+    if !have_evo() {
+        return;
+    }
+    let (Some(gt), Some(est), Some(mono)) = (
+        data("trajectories/freiburg1_xyz-groundtruth.txt"),
+        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
+        data("trajectories/freiburg1_xyz-ORB_kf_mono.txt"),
+    ) else {
+        return;
+    };
+    let (gt, est, mono) = (
+        gt.display().to_string(),
+        est.display().to_string(),
+        mono.display().to_string(),
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let suite = tmp.path().join("suite.toml");
+    std::fs::write(
+        &suite,
+        format!(
+            "[[entry]]\nname = \"rgbdslam se3\"\ngt = \"{gt}\"\nest = \"{est}\"\nmetric = \"ate\"\nalign = \"se3\"\nmax_rmse = 0.02\n\n\
+             [[entry]]\nname = \"orb mono sim3\"\ngt = \"{gt}\"\nest = \"{mono}\"\nmetric = \"ate\"\nalign = \"sim3\"\nmax_rmse = 0.005\n\n\
+             [[entry]]\nname = \"rgbdslam rpe\"\ngt = \"{gt}\"\nest = \"{est}\"\nmetric = \"rpe\"\ndelta = 10\n"
+        ),
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let o = common::run(&[
+        "eval",
+        "suite",
+        suite.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    // The Sim(3) entry exceeds its limit (0.0098 m > 0.005 m): exit code 1, results written.
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
+    assert_eq!(results["schema_version"], 1);
+    let entries = results["entries"].as_array().unwrap();
+    for (entry, evo_args) in entries.iter().zip([
+        vec!["ape", &gt, &est, "se3", "0.01"],
+        vec!["ape", &gt, &mono, "sim3", "0.01"],
+        vec!["rpe", &gt, &est, "none", "0.01", "10", "f", "0"],
+    ]) {
+        let evo = evo_stats(&evo_args);
+        compare(entry["name"].as_str().unwrap(), &entry["result"], &evo);
+    }
+    assert_eq!(
+        entries
+            .iter()
+            .map(|e| e["passed"].as_bool().unwrap())
+            .collect::<Vec<_>>(),
+        [true, false, true]
+    );
+    // A reference JUnit parser (junitparser, in the same throwaway venv) reads the file:
+    // one suite, three cases, the Sim(3) one failed.
+    let py = evo_python().unwrap();
+    let check = Command::new(&py)
+        .args([
+            "-c",
+            "import sys, junitparser\n\
+             x = junitparser.JUnitXml.fromfile(sys.argv[1])\n\
+             suites = list(x)\n\
+             assert len(suites) == 1, suites\n\
+             cases = list(suites[0])\n\
+             assert [c.name for c in cases] == ['rgbdslam se3', 'orb mono sim3', 'rgbdslam rpe'], cases\n\
+             failed = [c.name for c in cases if any(isinstance(r, junitparser.Failure) for r in c.result)]\n\
+             assert failed == ['orb mono sim3'], failed\n\
+             assert suites[0].tests == 3 and suites[0].failures == 1\n\
+             print('ok')",
+            out.join("junit.xml").to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        check.status.success(),
+        "junitparser: {}{}",
+        String::from_utf8_lossy(&check.stdout),
+        String::from_utf8_lossy(&check.stderr)
+    );
+}

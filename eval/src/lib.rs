@@ -16,6 +16,7 @@ pub mod align;
 pub mod ate;
 pub mod blur;
 pub mod error;
+pub mod limits;
 pub mod options;
 pub mod plot;
 pub mod report;
@@ -26,6 +27,7 @@ pub mod sync;
 
 pub use ate::{ate, AteOptions, AteResult};
 pub use error::EvalError;
+pub use limits::Limits;
 pub use options::{Align, DeltaUnit, Preset};
 pub use rpe::{rpe, RpeOptions, RpeResult};
 pub use stats::Statistics;

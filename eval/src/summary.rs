@@ -9,6 +9,21 @@ use crate::stats::Statistics;
 use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 
+/// The name of a single result's JSON schema (`stride eval ate|rpe --json`, report.json).
+pub const RESULT_SCHEMA: &str = "stride-eval-result";
+/// Its version: 1 added `schema`, `schema_version` and `metric` to version 0's keys, which
+/// are unchanged (docs/evaluation.md).
+pub const RESULT_SCHEMA_VERSION: u64 = 1;
+
+/// The schema's name and version, and the metric (`ate`, `rpe`).
+fn schema_header(metric: &str) -> Map<String, Value> {
+    let mut m = Map::new();
+    m.insert("schema".into(), json!(RESULT_SCHEMA));
+    m.insert("schema_version".into(), json!(RESULT_SCHEMA_VERSION));
+    m.insert("metric".into(), json!(metric));
+    m
+}
+
 fn put_stats(map: &mut Map<String, Value>, prefix: &str, s: &Statistics) {
     for (k, v) in s.rows() {
         map.insert(format!("{prefix}{k}"), json!(v));
@@ -44,7 +59,7 @@ impl AteResult {
     /// (s) and `offset` (s), the alignment's `scale`, and the orientation error statistics
     /// as `rot_deg_rmse`, `rot_deg_mean`, ...
     pub fn to_json(&self) -> Value {
-        let mut m = Map::new();
+        let mut m = schema_header("ate");
         put_stats(&mut m, "", &self.trans_m);
         m.insert("align".into(), json!(self.options.align.to_string()));
         m.insert("preset".into(), json!(self.options.preset.to_string()));
@@ -186,7 +201,7 @@ impl RpeResult {
     /// statistics as `rot_deg_*` (degrees) and `rot_chordal_*` (dimensionless).
     pub fn to_json(&self) -> Value {
         let o = &self.options;
-        let mut m = Map::new();
+        let mut m = schema_header("rpe");
         put_stats(&mut m, "", &self.trans_m);
         m.insert("align".into(), json!(o.align.to_string()));
         m.insert("preset".into(), json!(o.preset.to_string()));

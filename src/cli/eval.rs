@@ -15,6 +15,12 @@ pub enum EvalCommand {
     Ate(AteArgs),
     /// Relative pose error: error of the motion between poses `delta` apart (drift).
     Rpe(RpeArgs),
+    /// Many trajectory pairs at once, with limits: a Markdown summary, JUnit XML, JSON and
+    /// HTML; exit code 1 when an entry exceeds a limit.
+    Suite(super::eval_ci::SuiteArgs),
+    /// Two results (suites or single) side by side: every statistic's change, regressions
+    /// marked; exit code 1 on a regression with --fail-on-regression.
+    Compare(super::eval_ci::CompareArgs),
 }
 
 /// Options shared by both metrics.
@@ -94,6 +100,8 @@ pub fn run(cmd: EvalCommand) -> Result<()> {
     match cmd {
         EvalCommand::Ate(a) => run_ate(a),
         EvalCommand::Rpe(a) => run_rpe(a),
+        EvalCommand::Suite(a) => super::eval_ci::run_suite_cmd(a),
+        EvalCommand::Compare(a) => super::eval_ci::run_compare(a),
     }
 }
 

@@ -34,35 +34,33 @@ impl std::fmt::Display for LimitExceeded {
 impl std::error::Error for LimitExceeded {}
 
 impl Limits {
+    /// The limits as the eval crate checks them.
+    fn eval(&self) -> stride_eval::Limits {
+        stride_eval::Limits {
+            max_rmse: self.max_rmse,
+            max_mean: self.max_mean,
+            max_rot_deg: self.max_rot_deg,
+        }
+    }
+
     /// Checks the limits themselves (before any work): finite and not negative.
     pub fn validate(&self) -> Result<()> {
-        for (flag, v) in self.flags() {
-            if let Some(v) = v.filter(|v| !(v.is_finite() && *v >= 0.0)) {
-                anyhow::bail!("{flag} {v}: a limit must be a finite number, 0 or more");
+        self.eval().validate().map_err(|e| match e {
+            stride_eval::EvalError::InvalidOption { option, message } => {
+                anyhow::anyhow!("{} {message}", flag(option))
             }
-        }
-        Ok(())
+            other => other.into(),
+        })
     }
 
     /// Checks `what`'s translation (m) and rotation (degrees) statistics against the
     /// limits; a statistic that is not a number exceeds any limit.
     pub fn check(&self, what: &str, trans_m: &Statistics, rot_deg: &Statistics) -> Result<()> {
-        let measured = [
-            ("translation rmse", trans_m.rmse, "m"),
-            ("translation mean", trans_m.mean, "m"),
-            ("rotation rmse", rot_deg.rmse, "deg"),
-        ];
         let failures: Vec<String> = self
-            .flags()
-            .into_iter()
-            .zip(measured)
-            .filter_map(|((flag, limit), (name, value, unit))| {
-                let limit = limit?;
-                // A NaN statistic exceeds every limit.
-                let within = value.is_finite() && value <= limit;
-                (!within)
-                    .then(|| format!("{what} {name} {value:.6} {unit} > {flag} {limit} {unit}"))
-            })
+            .eval()
+            .exceeded(trans_m, rot_deg)
+            .iter()
+            .map(|e| e.describe(what, flag))
             .collect();
         if failures.is_empty() {
             Ok(())
@@ -70,12 +68,9 @@ impl Limits {
             Err(LimitExceeded(failures.join("; ")).into())
         }
     }
+}
 
-    fn flags(&self) -> [(&'static str, Option<f64>); 3] {
-        [
-            ("--max-rmse", self.max_rmse),
-            ("--max-mean", self.max_mean),
-            ("--max-rot-deg", self.max_rot_deg),
-        ]
-    }
+/// The command-line flag of a limit (`max_rmse` is `--max-rmse`).
+fn flag(limit_name: &str) -> String {
+    format!("--{}", limit_name.replace('_', "-"))
 }

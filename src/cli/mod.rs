@@ -4,6 +4,7 @@ mod bench;
 mod config;
 mod demo;
 mod eval;
+mod eval_ci;
 pub mod gates;
 mod map;
 mod map_figures;
