@@ -1,7 +1,7 @@
 //! Trajectory evaluation for CI: a suite of (ground truth, estimate, options, limits)
 //! entries run at once ([`run_suite`]), written as one versioned JSON file, a short
 //! Markdown summary for a pull request, a JUnit XML file for CI systems and an HTML report
-//! ([`SuiteResult`]); and the comparison of two results ([`compare`]).
+//! ([`SuiteResult`]); and the comparison of two results ([`compare()`]).
 //!
 //! A suite file (TOML; paths relative to it):
 //!
