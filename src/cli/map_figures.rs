@@ -31,23 +31,33 @@ pub fn elevation_chart(title: &str, elevation: &Grid<f32>, path: &[(f64, f64)]) 
     let (_, extent) = preview_geometry(elevation, MAX_SIDE_PX);
     let (lo, hi) = elevation.min_max().unwrap_or((0.0, 1.0));
     let png = relief_png(elevation, MAX_SIDE_PX).map_err(anyhow::Error::msg)?;
-    Ok(Chart {
+    Ok(map_chart(
+        title,
+        Raster {
+            label: "height (m)".into(),
+            png,
+            extent,
+            range: (f64::from(lo), f64::from(hi)),
+        },
+        path,
+    ))
+}
+
+/// A map image from above on metric world axes, with its colour bar, a scale bar and the
+/// walked path (world x-y, m).
+fn map_chart(title: &str, raster: Raster, path: &[(f64, f64)]) -> Chart {
+    Chart {
         title: title.into(),
         x_label: "world x (m)".into(),
         y_label: "world y (m)".into(),
         series: vec![
             Series::line("walked path (camera)", PALETTE[1], path.to_vec()),
-            scale_bar(extent),
+            scale_bar(raster.extent),
         ],
-        raster: Some(Raster {
-            label: "height (m)".into(),
-            png,
-            extent,
-            range: (f64::from(lo), f64::from(hi)),
-        }),
+        raster: Some(raster),
         equal_aspect: true,
         ..Chart::default()
-    })
+    }
 }
 
 /// The map's absolute error against the true terrain (cm on the colour bar, up to twice
@@ -84,21 +94,14 @@ pub fn error_chart(
     let top = (2.0 * p95).max(0.5);
     let (_, extent) = preview_geometry(&error, MAX_SIDE_PX);
     let png = heat_png(&error, (0.0, top), MAX_SIDE_PX).map_err(anyhow::Error::msg)?;
-    Ok(Some(Chart {
-        title: "Map error against the true terrain".into(),
-        x_label: "world x (m)".into(),
-        y_label: "world y (m)".into(),
-        series: vec![
-            Series::line("walked path (camera)", PALETTE[1], path.to_vec()),
-            scale_bar(extent),
-        ],
-        raster: Some(Raster {
+    Ok(Some(map_chart(
+        "Map error against the true terrain",
+        Raster {
             label: format!("|error| (cm), clamped at {top:.1}"),
             png,
             extent,
             range: (0.0, top),
-        }),
-        equal_aspect: true,
-        ..Chart::default()
-    }))
+        },
+        path,
+    )))
 }
