@@ -181,7 +181,11 @@ pub fn run(a: RunArgs) -> Result<()> {
         "{} frames, {} tracked, {} lost, {} skipped; {} frames/s with the back end ({}), odometry median {:.2} ms/frame (decoding excluded)",
         j["frames"], j["frames_tracked"], j["frames_lost"], j["frames_skipped"], format_args!("{:.1}", f("fps")), j["backend"].as_str().unwrap_or("?"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
     );
-    if let Some(kf) = j.get("keyframes").and_then(Value::as_u64) {
+    // Map points and local optimizations exist only with a back end.
+    if let (Some(kf), Some(_)) = (
+        j.get("keyframes").and_then(Value::as_u64),
+        j.get("map_points"),
+    ) {
         let _ = write!(
             line,
             "\n{kf} keyframes, {} map points; local optimization median {:.2} ms",

@@ -6,10 +6,12 @@
 //! 2. the elevation map ([`terrain::Terrain`], in its own thread) keeps the frame's depth
 //!    as a view tied to its keyframe (every few frames), moves the keyframes the back end
 //!    answered for, and maps the views whose pose is known, once the gravity-aligned world
-//!    is (the floor in the first frames, or a given mounting).
+//!    is ([`world`]: a reference trajectory, a given mounting, the accelerometer, or the
+//!    floor in the first frames).
 //!
 //! At the end ([`Pipeline::finish`]) the back end runs its full optimization, the world
-//! frame is refined with every floor seen, and the map is rebuilt at the final poses.
+//! frame is refined with the final poses (every floor seen, every accelerometer sample),
+//! and the map is rebuilt at the final poses.
 //!
 //! Frames (SLAM, odometry, back end) are named as in the rest of stride: every output pose
 //! is `world_from_camera` in the world (z up, gravity-aligned, metres), cameras looking
