@@ -227,4 +227,26 @@ fn the_configuration_file_is_documented_checked_and_overridden_by_flags() {
         &["--config", c, "--seed", "2", "--max-frames", "8"],
     );
     assert_eq!(r["seed"], 2);
+    // `stride map` takes the file's [map.stack]; its flags override it.
+    std::fs::write(
+        &cfg,
+        "[map.stack]\nresolution_m = 0.02\nsee_through_check = false\n",
+    )
+    .unwrap();
+    let seq = std::path::Path::new(teddy);
+    let m = common::run_report(
+        "map",
+        seq,
+        &tmp.path().join("m1"),
+        &["--config", c, "--max-frames", "10"],
+    );
+    assert_eq!(m["stack_config"]["resolution_m"], 0.02);
+    assert_eq!(m["stack_config"]["see_through_check"], false);
+    let m = common::run_report(
+        "map",
+        seq,
+        &tmp.path().join("m2"),
+        &["--config", c, "--resolution", "0.05", "--max-frames", "10"],
+    );
+    assert_eq!(m["stack_config"]["resolution_m"], 0.05);
 }

@@ -50,11 +50,15 @@ pub struct MapArgs {
     #[arg(long, value_enum, default_value = "stack")]
     pub mapper: MapperArg,
     /// Cell size (m).
-    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
-    pub resolution: f64,
+    #[arg(long, allow_negative_numbers = true)]
+    pub resolution: Option<f64>,
     /// Side of the moving window (m).
-    #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
-    pub size: f64,
+    #[arg(long, allow_negative_numbers = true)]
+    pub size: Option<f64>,
+    /// The stack mapper's parameters from a configuration file's [map.stack] (see `stride
+    /// config --print-defaults`); the flags override it.
+    #[arg(long, value_name = "FILE.toml")]
+    pub config: Option<PathBuf>,
     /// Ground-truth elevation (.npy with its .json or grid.json beside it) to evaluate
     /// against [default: the folder's terrain.npy when present].
     #[arg(long, value_name = "FILE.npy")]
@@ -119,30 +123,37 @@ pub fn drifted(traj: &Trajectory, percent: f64, seed: u64) -> Result<Trajectory>
     Ok(out)
 }
 
-/// The stack mapper's parameters from the command line.
-pub fn stack_config(a: &MapArgs) -> StackConfig {
-    let d = StackConfig::default();
-    StackConfig {
-        resolution_m: a.resolution,
-        size_m: a.size,
-        visibility_check: !a.no_visibility,
-        see_through_check: !a.no_see_through,
+/// The stack mapper's parameters: the --config file's [map.stack] (or the defaults [1 cm
+/// cells, a 4 m window]), then the flags.
+pub fn stack_config(a: &MapArgs) -> Result<StackConfig> {
+    let d = match &a.config {
+        Some(path) => stride::config::Config::load(path)?
+            .map
+            .map(|m| m.stack)
+            .unwrap_or_default(),
+        None => StackConfig::default(),
+    };
+    Ok(StackConfig {
+        resolution_m: a.resolution.unwrap_or(d.resolution_m),
+        size_m: a.size.unwrap_or(d.size_m),
+        visibility_check: d.visibility_check && !a.no_visibility,
+        see_through_check: d.see_through_check && !a.no_see_through,
         edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
         median_filter: d.median_filter.filter(|_| !a.no_median_filter),
         ..d
-    }
+    })
 }
 
 /// The mappers asked for; an error naming the flags when the mapping crate refuses their
 /// parameters.
-fn make_mappers(a: &MapArgs) -> Result<Vec<Box<dyn ElevationMapper>>> {
+fn make_mappers(a: &MapArgs, c: &StackConfig) -> Result<Vec<Box<dyn ElevationMapper>>> {
     let stack = || -> Result<Box<dyn ElevationMapper>, MappingError> {
-        Ok(Box::new(StackMapper::new(stack_config(a))?))
+        Ok(Box::new(StackMapper::new(c.clone())?))
     };
     let fank = || -> Result<Box<dyn ElevationMapper>, MappingError> {
         Ok(Box::new(FankhauserMapper::new(FankhauserConfig {
-            resolution_m: a.resolution,
-            size_m: a.size,
+            resolution_m: c.resolution_m,
+            size_m: c.size_m,
             ..FankhauserConfig::default()
         })?))
     };
@@ -253,10 +264,11 @@ pub fn run(a: MapArgs) -> Result<()> {
 /// the runs and the frame counts.
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
-    let mappers = make_mappers(a).with_context(|| {
+    let stack = stack_config(a)?;
+    let mappers = make_mappers(a, &stack).with_context(|| {
         format!(
             "--resolution {} and --size {} give no valid map",
-            a.resolution, a.size
+            stack.resolution_m, stack.size_m
         )
     })?;
     let seq = TumSequence::open(
@@ -408,19 +420,10 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     );
     report.insert("drift_percent".into(), json!(a.drift));
     if a.mapper != MapperArg::Fankhauser {
-        let c = stack_config(a);
+        // Every parameter, as a configuration file's [map.stack] holds them.
         report.insert(
             "stack_config".into(),
-            json!({
-                "resolution_m": c.resolution_m,
-                "size_m": c.size_m,
-                "voxel_height_m": c.voxel_height_m,
-                "vitality": [c.vitality_increase, c.vitality_decrease, c.vitality_threshold],
-                "visibility_check": c.visibility_check,
-                "see_through_check": c.see_through_check,
-                "edge_filter": c.edge_filter.is_some(),
-                "median_filter": !a.no_median_filter,
-            }),
+            serde_json::to_value(&stack).unwrap_or(Value::Null),
         );
     }
     write_atomic(
