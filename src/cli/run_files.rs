@@ -109,7 +109,8 @@ pub fn write_run(
         None => None,
     };
     write_frames_csv(&dir.join("frames.csv"), &output)?;
-    write_atomic(&dir.join("config.toml"), config.to_toml()?.as_bytes())?;
+    let config_toml = config.to_toml()?;
+    write_atomic(&dir.join("config.toml"), config_toml.as_bytes())?;
     if let Some(m) = &map {
         crate::cli::map::write_layers(&dir.join("map"), &m.layers)?;
     }
@@ -161,7 +162,7 @@ pub fn write_run(
         terrain: terrain.as_ref(),
         ate: ate_r.as_ref(),
         rpe: rpe_r.as_ref(),
-        config_toml: &config.to_toml()?,
+        config_toml: &config_toml,
     };
     super::run_report::write_html(dir, &page)?;
     staged

@@ -75,7 +75,7 @@ impl ScheduleConfig {
 
 /// A TOML parse error on one line: its position (the first line of the parser's message)
 /// and what is wrong (the last), without the source excerpt between them.
-fn parse_message(full: &str) -> String {
+pub(crate) fn parse_message(full: &str) -> String {
     let lines: Vec<&str> = full.lines().filter(|l| !l.trim().is_empty()).collect();
     match (lines.first(), lines.last()) {
         (Some(first), Some(last)) if lines.len() > 1 => format!("{first}: {last}"),

@@ -163,14 +163,8 @@ pub fn run_suite(path: &Path) -> Result<SuiteResult, SuiteError> {
         message,
     };
     let text = std::fs::read_to_string(path).map_err(|e| file_err(e.to_string()))?;
-    let spec: SuiteFile = toml::from_str(&text).map_err(|e| {
-        let full = e.to_string();
-        let lines: Vec<&str> = full.lines().filter(|l| !l.trim().is_empty()).collect();
-        file_err(match (lines.first(), lines.last()) {
-            (Some(a), Some(b)) if lines.len() > 1 => format!("{a}: {b}"),
-            _ => full.trim().to_owned(),
-        })
-    })?;
+    let spec: SuiteFile = toml::from_str(&text)
+        .map_err(|e| file_err(crate::config::parse_message(&e.to_string())))?;
     if spec.entry.is_empty() {
         return Err(file_err("no [[entry]]".into()));
     }

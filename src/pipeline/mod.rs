@@ -176,9 +176,9 @@ impl Pipeline {
                     t.poses(vec![(id, record.live_world_from_camera)])?;
                 }
             }
-            Self::update_map(&mut self.slam, t)?;
             self.map_wall_s += start.elapsed().as_secs_f64();
         }
+        self.update_map()?;
         Ok(record)
     }
 
@@ -192,20 +192,25 @@ impl Pipeline {
     ) -> Result<FrameRecord, PipelineError> {
         let record = self.slam.skip(index, t_s, reason)?;
         self.frames += 1;
-        if let Some(t) = self.terrain.as_mut() {
-            Self::update_map(&mut self.slam, t)?;
-        }
+        self.update_map()?;
         Ok(record)
     }
 
-    /// Hands the back end's answers and the world frame (once known) to the map.
-    fn update_map(slam: &mut Slam, t: &mut TerrainThread) -> Result<(), PipelineError> {
-        t.poses(slam.take_answers())?;
+    /// Hands the back end's answers and the world frame (once known) to the map. The
+    /// answers are taken even without a map, so that they never pile up.
+    fn update_map(&mut self) -> Result<(), PipelineError> {
+        let answers = self.slam.take_answers();
+        let Some(t) = self.terrain.as_mut() else {
+            return Ok(());
+        };
+        let start = Instant::now();
+        t.poses(answers)?;
         if !t.has_world() {
-            if let Some(w) = slam.provisional_world() {
+            if let Some(w) = self.slam.provisional_world() {
                 t.world(w.world_from_slam)?;
             }
         }
+        self.map_wall_s += start.elapsed().as_secs_f64();
         Ok(())
     }
 

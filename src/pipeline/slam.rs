@@ -256,7 +256,9 @@ impl Slam {
                 frames.map(|f| (f.t_s, f.live_world_from_camera)),
             );
         }
-        if self.frames.len() < world::FLOOR_SEARCH_FRAMES {
+        // Nothing to make a world of yet: skip gathering every frame's pose.
+        let no_source = self.floors.is_empty() && self.accelerometer.is_none();
+        if self.frames.len() < world::FLOOR_SEARCH_FRAMES || no_source {
             return None;
         }
         let poses: Vec<_> = self

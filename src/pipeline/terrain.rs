@@ -245,11 +245,6 @@ impl Terrain {
         self.keyframe_poses.retain(|&k, _| k >= oldest);
     }
 
-    /// Whether the world frame is known (mapping has started).
-    pub fn has_world(&self) -> bool {
-        self.world_from_slam.is_some()
-    }
-
     /// Sets the world frame (once; later calls are ignored until [`Terrain::finish`]).
     pub fn set_world(&mut self, world_from_slam: Isometry3<f64>) {
         self.world_from_slam.get_or_insert(world_from_slam);
