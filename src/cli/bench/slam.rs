@@ -11,6 +11,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 use stride::pipeline::world::WorldPlan;
 use stride::pipeline::{median_p95, Schedule};
+use stride::config::Config;
 use stride::{Pipeline, PipelineConfig};
 use stride_backend::BackendConfig;
 use stride_core::frame::RgbdFrame;
@@ -26,6 +27,11 @@ pub struct VoBenchArgs {
     /// Camera preset or file [default: from the folder].
     #[arg(long)]
     camera: Option<String>,
+    /// The SLAM's odometry and back-end settings from a TOML configuration (`stride config
+    /// --print-defaults`); `--backend` overrides its mode. The odometry alone keeps its own
+    /// defaults.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
     /// Runs of each configuration (medians are reported).
     #[arg(long, default_value_t = 5)]
     runs: usize,
@@ -137,18 +143,22 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
         frames.push((f, t.elapsed().as_secs_f64()));
     }
     let decode_ms = median(frames.iter().map(|(_, d)| d * 1e3).collect());
+    let config = match &a.config {
+        Some(path) => Config::load(path)?,
+        None => Config::default(),
+    };
     let mode = a.backend.mode();
     let with = |schedule| {
         mode.map(|mode| {
             let c = BackendConfig {
                 mode,
-                ..BackendConfig::default()
+                ..config.backend.clone().unwrap_or_default()
             };
             (c, schedule)
         })
     };
     let fixed = with(Schedule::Fixed {
-        lag_frames: Schedule::DEFAULT_LAG_FRAMES,
+        lag_frames: config.schedule.lag_frames,
     });
     let free = with(Schedule::Free);
     // The configurations take turns run by run, so that all see the same machine state:
@@ -157,9 +167,10 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
     // odometry alone with its own defaults.
     let mut runs: [Vec<RunFigures>; 4] = Default::default();
     for _ in 0..a.runs {
-        runs[0].push(run_once(&seq, &frames, VoConfig::default(), fixed.clone())?);
-        runs[1].push(run_once(&seq, &frames, VoConfig::default(), free.clone())?);
-        runs[2].push(run_once(&seq, &frames, VoConfig::default(), None)?);
+        let vo = || config.odometry.clone();
+        runs[0].push(run_once(&seq, &frames, vo(), fixed.clone())?);
+        runs[1].push(run_once(&seq, &frames, vo(), free.clone())?);
+        runs[2].push(run_once(&seq, &frames, vo(), None)?);
         runs[3].push(run_once(&seq, &frames, VoConfig::odometry_only(), None)?);
     }
     let [s, sf, sv, v] = runs.each_ref().map(|r| summary(r));
