@@ -103,6 +103,16 @@ pub struct VoConfig {
     pub max_step_rotation_deg: f64,
     /// Compute ORB descriptors of keyframe keypoints (for map matching by a back end).
     pub orb_descriptors: bool,
+    /// Wide-baseline recovery ([`crate::recovery`]): when Lucas-Kanade loses a frame, or
+    /// keeps fewer than `keyframe_min_inliers` inliers, the frame's ORB features are matched
+    /// against those of this many recent keyframes and its pose is estimated from the
+    /// matches. `None` disables it. Each keyframe kept costs its depth image and pyramid
+    /// (about 3 MB at 640x480).
+    #[serde(with = "stride_core::serde_opt")]
+    pub recovery_keyframes: Option<usize>,
+    /// Fewest RANSAC inliers among the matches for a recovered pose to be accepted (it must
+    /// also have more inliers than Lucas-Kanade's estimate).
+    pub recovery_min_inliers: usize,
     /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
     /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
@@ -316,6 +326,20 @@ impl VoConfig {
             pos(c.max_step_rotation_deg),
             "positive (deg)",
         )?;
+        if let Some(k) = c.recovery_keyframes {
+            check(
+                "recovery_keyframes",
+                k,
+                (1..=20).contains(&k),
+                "1 to 20 (or false: no recovery)",
+            )?;
+        }
+        check(
+            "recovery_min_inliers",
+            c.recovery_min_inliers,
+            c.recovery_min_inliers >= c.min_inliers.max(3),
+            "at least min_inliers",
+        )?;
         check(
             "rolling_shutter_s",
             c.rolling_shutter_s,
@@ -367,6 +391,8 @@ impl Default for VoConfig {
             max_step_translation_m: 0.5,
             max_step_rotation_deg: 45.0,
             orb_descriptors: true,
+            recovery_keyframes: Some(5),
+            recovery_min_inliers: 20,
             rolling_shutter_s: 0.0,
             seed: 1,
         }

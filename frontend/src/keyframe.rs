@@ -126,6 +126,9 @@ impl VisualOdometry {
         } else {
             vec![None; tracks.len()]
         };
+        if let Some(keep) = self.config.recovery_keyframes {
+            self.recent.push(pyr, &frame.depth_m, *world_from_cur, keep);
+        }
         let features = tracks
             .iter()
             .zip(descriptors)

@@ -5,7 +5,9 @@
 //! keyframes), pyramidal Lucas-Kanade tracking with a forward-backward check seeded by the
 //! predicted motion ([`klt`]), 3-D points with per-point covariances from the depth image
 //! ([`points`], paper 000 eqs. 10-12), and the camera motion from Umeyama + RANSAC refined
-//! with the covariance-weighted 3-D error ([`motion`]). [`VisualOdometry`] ties them together.
+//! with the covariance-weighted 3-D error ([`motion`]). [`VisualOdometry`] ties them together;
+//! [`recovery`] finds frames that tracking loses by matching ORB features against recent
+//! keyframes.
 //!
 //! Deterministic: RANSAC is seeded, OpenCV's tracking and detection do not depend on thread
 //! scheduling, and nothing else is random.
@@ -17,6 +19,7 @@ pub mod keyframe;
 pub mod klt;
 pub mod motion;
 pub mod points;
+pub mod recovery;
 pub mod result;
 pub mod vo;
 

@@ -12,6 +12,9 @@ pub enum TrackingStatus {
     Initialized,
     /// Estimated from tracked 3-D points.
     Tracked,
+    /// Lucas-Kanade could not follow (or kept too few inliers); the pose was found by
+    /// matching ORB features against recent keyframes ([`crate::recovery`]).
+    Recovered,
     /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
     Lost,
 }
@@ -22,6 +25,7 @@ impl TrackingStatus {
         match self {
             TrackingStatus::Initialized => "initialized",
             TrackingStatus::Tracked => "tracked",
+            TrackingStatus::Recovered => "recovered",
             TrackingStatus::Lost => "lost",
         }
     }
@@ -38,6 +42,8 @@ pub struct StageTimes {
     pub ransac_s: f64,
     /// Gauss-Newton refinement.
     pub refine_s: f64,
+    /// Wide-baseline recovery (detection, ORB matching, RANSAC), when it ran.
+    pub recover_s: f64,
     /// The whole frame.
     pub total_s: f64,
 }

@@ -17,9 +17,11 @@
 //!
 //! Because each pose is estimated against points that persist as long as they are tracked,
 //! drift only enters when new points are created. When a frame cannot be estimated (too few
-//! inliers, an implausible jump, no depth), its pose is predicted with the constant-velocity
-//! model, the frame is marked [`TrackingStatus::Lost`], and it becomes a keyframe so that
-//! tracking resumes with the next frame. Poses are never NaN.
+//! inliers, an implausible jump, no depth) or keeps few inliers, it is matched by appearance
+//! against recent keyframes ([`crate::recovery`], [`TrackingStatus::Recovered`]); when that
+//! fails too, its pose is predicted with the constant-velocity model and the frame is marked
+//! [`TrackingStatus::Lost`]. Either way it becomes a keyframe so that tracking resumes with
+//! the next frame. Poses are never NaN.
 
 use crate::config::VoConfig;
 use crate::error::FrontendError;
@@ -30,6 +32,7 @@ use crate::motion::{
     is_finite, is_inlier, polish, ransac, Correspondence, MotionEstimate, MotionParams,
 };
 use crate::points::{measure, Measurement, ShutterMotion};
+use crate::recovery::RecentKeyframes;
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
 use opencv::core::Point2f;
@@ -68,7 +71,9 @@ pub struct VisualOdometry {
     /// Keyframes made so far (the next keyframe's identifier).
     pub(crate) kf_count: u64,
     pub(crate) next_id: u64,
-    rng: SplitMix64,
+    pub(crate) rng: SplitMix64,
+    /// ORB features of the recent keyframes, for the wide-baseline recovery.
+    pub(crate) recent: RecentKeyframes,
     /// The camera's motion during this frame's readout (rolling shutter).
     pub(crate) shutter: ShutterMotion,
 }
@@ -101,6 +106,7 @@ impl VisualOdometry {
             kf_pyramids: Vec::new(),
             kf_count: 0,
             next_id: 0,
+            recent: RecentKeyframes::new()?,
             shutter: ShutterMotion::default(),
         })
     }
@@ -271,6 +277,21 @@ impl VisualOdometry {
             }
             None => status = TrackingStatus::Lost,
         }
+        // 3b. Wide baseline: a lost or weakly tracked frame is matched by appearance.
+        let mut recovered_tracks = None;
+        let mut correspondences = corrs.len();
+        if status == TrackingStatus::Lost || inliers < cfg.keyframe_min_inliers {
+            let t_w = Instant::now();
+            // A weak estimate is replaced only by one with clearly more support.
+            if let Some(r) = self.recover(frame, &pyr, 2 * inliers)? {
+                world_from_cur = r.world_from_cur;
+                (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
+                status = TrackingStatus::Recovered;
+                recovered_tracks = Some(r.tracks);
+                correspondences = r.matches;
+            }
+            timing.recover_s = t_w.elapsed().as_secs_f64();
+        }
         if !is_finite(&world_from_cur) {
             world_from_cur = self.world_from_prev;
         }
@@ -293,22 +314,25 @@ impl VisualOdometry {
             });
             Self::fuse_observations(&mut alive, &world_from_cur);
         }
+        if let Some(tracks) = recovered_tracks {
+            alive = tracks;
+        }
+        let estimated = matches!(status, TrackingStatus::Tracked | TrackingStatus::Recovered);
 
         // 4. Keyframe?
         let kf_from_cur = self.world_from_kf.inverse() * world_from_cur;
         let tracked_count = alive.len();
-        let need_kf = status == TrackingStatus::Lost
+        let need_kf = status != TrackingStatus::Tracked
             || inliers < cfg.keyframe_min_inliers
             || (tracked_count as f64) < cfg.redetect_fraction * self.kf_tracks as f64
             || kf_from_cur.translation.vector.norm() > cfg.keyframe_max_translation_m
             || kf_from_cur.rotation.angle().to_degrees() > cfg.keyframe_max_rotation_deg;
-        let correspondences = corrs.len();
         let mut new_keyframe = None;
         let (tracks, measured): (Vec<Track>, Vec<Option<Measurement>>) = alive.into_iter().unzip();
         self.tracks = tracks;
         if need_kf {
             // New points are measured with this frame's estimated motion.
-            if status == TrackingStatus::Tracked {
+            if estimated {
                 let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
                 let dt = frame.t_s - self.prev_t;
                 self.shutter = ShutterMotion::new(readout_s, rows, &prev_from_cur, dt);
@@ -334,7 +358,7 @@ impl VisualOdometry {
 
         // 5. Motion model.
         let dt = frame.t_s - self.prev_t;
-        if status == TrackingStatus::Tracked && dt > 0.0 {
+        if estimated && dt > 0.0 {
             self.last_motion = Some((self.world_from_prev.inverse() * world_from_cur, dt));
         }
         self.world_from_prev = world_from_cur;

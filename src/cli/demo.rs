@@ -263,6 +263,7 @@ fn summary_json(a: &DemoArgs, st: &Stages, started: std::time::Instant) -> Value
         "blur": st.config.blur,
         "slam": {
             "frames_tracked": j["frames_tracked"],
+            "frames_recovered": j["frames_recovered"],
             "frames_lost": j["frames_lost"],
             "keyframes": j["keyframes"],
             "ate_rmse_m": st.slam.ate.as_ref().map(|r| r.trans_m.rmse),
@@ -437,10 +438,10 @@ fn results_rows(st: &Stages, s: &Value) -> Vec<Vec<String>> {
     };
     let mut rows = vec![
         vec![
-            "frames tracked / lost / keyframes".to_owned(),
+            "frames tracked / recovered / lost / keyframes".to_owned(),
             format!(
-                "{} / {} / {}",
-                j["frames_tracked"], j["frames_lost"], j["keyframes"]
+                "{} / {} / {} / {}",
+                j["frames_tracked"], j["frames_recovered"], j["frames_lost"], j["keyframes"]
             ),
         ],
         vec![

@@ -203,12 +203,12 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
 }
 
 fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
-    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,total_ms,wait_ms\n");
+    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,recover_ms,total_ms,wait_ms\n");
     for f in &out.frames {
         let t = &f.timing;
         let _ = writeln!(
             s,
-            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
             f.index,
             f.t_s,
             f.status.as_str(),
@@ -221,6 +221,7 @@ fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
             t.track_s * 1e3,
             t.ransac_s * 1e3,
             t.refine_s * 1e3,
+            t.recover_s * 1e3,
             t.total_s * 1e3,
             f.wait_s * 1e3
         );
@@ -253,6 +254,7 @@ fn report_json(
     timing.insert("track".into(), stage(|r| r.timing.track_s));
     timing.insert("ransac".into(), stage(|r| r.timing.ransac_s));
     timing.insert("refine".into(), stage(|r| r.timing.refine_s));
+    timing.insert("recover".into(), stage(|r| r.timing.recover_s));
     timing.insert("total".into(), stage(|r| r.timing.total_s));
     let rate = |s: f64| {
         if s > 0.0 {
@@ -264,6 +266,10 @@ fn report_json(
     let mut m = Map::new();
     m.insert("frames".into(), json!(out.frames.len()));
     m.insert("frames_tracked".into(), json!(count(FrameStatus::Tracked)));
+    m.insert(
+        "frames_recovered".into(),
+        json!(count(FrameStatus::Recovered)),
+    );
     m.insert("frames_lost".into(), json!(count(FrameStatus::Lost)));
     m.insert("frames_skipped".into(), json!(count(FrameStatus::Skipped)));
     m.insert(

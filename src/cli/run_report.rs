@@ -155,6 +155,10 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
             vec!["frames".into(), g("frames")],
             vec!["tracked".into(), g("frames_tracked")],
             vec![
+                "recovered (ORB matching against recent keyframes)".into(),
+                g("frames_recovered"),
+            ],
+            vec![
                 "lost (constant-velocity prediction)".into(),
                 g("frames_lost"),
             ],
@@ -255,8 +259,18 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                     PALETTE[1],
                     out.frames
                         .iter()
-                        .filter(|f| f.status != FrameStatus::Tracked)
+                        .filter(|f| matches!(f.status, FrameStatus::Lost | FrameStatus::Skipped))
                         .map(|f| (f.t_s - t0, 0.0))
+                        .collect(),
+                )
+                .with_style(Style::Markers),
+                Series::line(
+                    "recovered",
+                    PALETTE[2],
+                    out.frames
+                        .iter()
+                        .filter(|f| f.status == FrameStatus::Recovered)
+                        .map(|f| (f.t_s - t0, f.inliers as f64))
                         .collect(),
                 )
                 .with_style(Style::Markers),

@@ -12,6 +12,9 @@ use stride_frontend::StageTimes;
 pub enum FrameStatus {
     /// Estimated by the odometry (or the first frame).
     Tracked,
+    /// Lucas-Kanade could not follow it; found by matching ORB features against recent
+    /// keyframes (the odometry's wide-baseline recovery).
+    Recovered,
     /// The odometry could not estimate it: predicted by constant velocity.
     Lost,
     /// The frame could not be loaded: predicted by constant velocity.
@@ -23,6 +26,7 @@ impl FrameStatus {
     pub fn as_str(&self) -> &'static str {
         match self {
             FrameStatus::Tracked => "tracked",
+            FrameStatus::Recovered => "recovered",
             FrameStatus::Lost => "lost",
             FrameStatus::Skipped => "skipped",
         }

@@ -157,6 +157,12 @@ impl Slam {
                 r.index, r.t_s, r.tracked, r.inliers
             );
         }
+        if r.status == TrackingStatus::Recovered {
+            tracing::info!(
+                "frame {} ({:.6} s): recovered by ORB matching against recent keyframes ({} inliers of {} matches)",
+                r.index, r.t_s, r.inliers, r.correspondences
+            );
+        }
         if r.status != TrackingStatus::Lost {
             self.look_for_floor(frame, r.keyframe);
         }
@@ -176,10 +182,10 @@ impl Slam {
             live_world_from_camera: correction * r.world_from_camera,
             odometry_world_from_camera: r.world_from_camera,
             keyframe_id: r.keyframe_id,
-            status: if r.status == TrackingStatus::Lost {
-                FrameStatus::Lost
-            } else {
-                FrameStatus::Tracked
+            status: match r.status {
+                TrackingStatus::Lost => FrameStatus::Lost,
+                TrackingStatus::Recovered => FrameStatus::Recovered,
+                TrackingStatus::Initialized | TrackingStatus::Tracked => FrameStatus::Tracked,
             },
             keyframe: r.keyframe,
             tracked: r.tracked,

@@ -1,0 +1,353 @@
+//! Wide-baseline recovery: a frame that Lucas-Kanade cannot follow (a dropped stretch of
+//! frames, a jolt, a fast turn) is matched by appearance instead.
+//!
+//! The odometry keeps the last few keyframes' images, depth and poses. When tracking fails
+//! or keeps fewer than `keyframe_min_inliers` inliers, multi-scale ORB features (computed
+//! for a keyframe only the first time it is needed) of the frame and of each recent keyframe
+//! are matched, unguided, since the prediction is what failed: each feature's nearest
+//! descriptor by Hamming distance, kept when close enough ([`MAX_HAMMING`]), clearly better
+//! than the second nearest ([`RATIO`]), and the only one claiming that keyframe feature.
+//! RANSAC over the 3-D/3-D matches (the tracking's estimator, with more iterations for the
+//! lower inlier ratio) gives the pose against the keyframe with the most inliers, and the
+//! matched points, placed in the world by that keyframe, become the new keyframe's tracks:
+//! tracking resumes on old points instead of starting afresh at a predicted pose.
+
+use crate::error::FrontendError;
+use crate::features::{hamming, OrbDescriptor};
+use crate::keyframe::{Track, TrackPoint};
+use crate::klt::Pyramid;
+use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams};
+use crate::points::{measure, Measurement, ShutterMotion};
+use crate::vo::VisualOdometry;
+use crate::VoConfig;
+use nalgebra::{Isometry3, Matrix6};
+use opencv::core::{KeyPoint, Mat, Point2f, Ptr, Vector};
+use opencv::features2d::{Feature2DTrait, ORB_ScoreType, ORB};
+use opencv::prelude::*;
+use std::collections::VecDeque;
+use std::rc::Rc;
+use stride_core::camera::PinholeCamera;
+use stride_core::frame::RgbdFrame;
+use stride_core::image::DepthImage;
+
+/// Largest Hamming distance (of 256 bits) of an accepted match: ORB-SLAM's stricter bound.
+pub const MAX_HAMMING: u32 = 50;
+/// A match is kept only when its distance is below this fraction of the second best's.
+pub const RATIO: f64 = 0.8;
+/// ORB features per image: as ORB-SLAM extracts from a VGA frame.
+const ORB_FEATURES: i32 = 1000;
+/// ORB's FAST threshold: lower than the tracking's, for the weakly textured, blurred frames
+/// that recovery most often faces.
+const ORB_FAST_THRESHOLD: i32 = 12;
+/// Kept keyframes are at least this far apart (m) ...
+const SPACING_M: f64 = 0.15;
+/// ... or this rotation apart (rad, 15 degrees), except the newest: a handful of them then
+/// covers the last metre or so of the path, not the last few frames.
+const SPACING_RAD: f64 = 0.26;
+/// RANSAC iterations for the matches: their inlier ratio can be a quarter, where 300 (the
+/// tracking default) finds a clean sample only about half of the time.
+const RANSAC_ITERATIONS: usize = 2000;
+
+/// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
+/// camera's frame (m, covariance m^2).
+#[derive(Debug, Clone, Copy)]
+struct OrbPoint {
+    px: Point2f,
+    descriptor: OrbDescriptor,
+    p_camera: Measurement,
+}
+
+/// A recent keyframe as recovery needs it.
+struct RecentKeyframe {
+    pyramid: Rc<Pyramid>,
+    depth_m: DepthImage,
+    world_from_kf: Isometry3<f64>,
+    /// Its ORB points, computed the first time recovery needs them.
+    points: Option<Vec<OrbPoint>>,
+}
+
+/// The most recent keyframes (oldest first) and the ORB extractor recovery uses.
+pub(crate) struct RecentKeyframes {
+    keyframes: VecDeque<RecentKeyframe>,
+    orb: Ptr<ORB>,
+}
+
+impl RecentKeyframes {
+    /// None yet.
+    pub(crate) fn new() -> Result<Self, FrontendError> {
+        let orb = ORB::create(
+            ORB_FEATURES,
+            1.2,
+            8,
+            31,
+            0,
+            2,
+            ORB_ScoreType::HARRIS_SCORE,
+            31,
+            ORB_FAST_THRESHOLD,
+        )?;
+        Ok(Self {
+            keyframes: VecDeque::new(),
+            orb,
+        })
+    }
+
+    /// Adds a keyframe (sharing its pyramid, copying its depth), forgetting the oldest
+    /// beyond `keep`. The previous newest is dropped if it is within the spacing
+    /// ([`SPACING_M`], [`SPACING_RAD`]) of the one before it.
+    pub(crate) fn push(
+        &mut self,
+        pyramid: &Rc<Pyramid>,
+        depth_m: &DepthImage,
+        world_from_kf: Isometry3<f64>,
+        keep: usize,
+    ) {
+        let n = self.keyframes.len();
+        if let (Some(a), Some(b)) = (
+            n.checked_sub(2).and_then(|i| self.keyframes.get(i)),
+            self.keyframes.back(),
+        ) {
+            let step = a.world_from_kf.inverse() * b.world_from_kf;
+            if step.translation.vector.norm() < SPACING_M && step.rotation.angle() < SPACING_RAD {
+                self.keyframes.pop_back();
+            }
+        }
+        self.keyframes.push_back(RecentKeyframe {
+            pyramid: Rc::clone(pyramid),
+            depth_m: depth_m.clone(),
+            world_from_kf,
+            points: None,
+        });
+        while self.keyframes.len() > keep {
+            self.keyframes.pop_front();
+        }
+    }
+}
+
+/// ORB points of a grey image with depth.
+fn orb_points(
+    orb: &mut Ptr<ORB>,
+    gray: &Mat,
+    depth_m: &DepthImage,
+    camera: &PinholeCamera,
+    shutter: &ShutterMotion,
+    config: &VoConfig,
+) -> Result<Vec<OrbPoint>, FrontendError> {
+    {
+        let mut kps = Vector::<KeyPoint>::new();
+        let mut desc = Mat::default();
+        orb.detect_and_compute(gray, &opencv::core::no_array(), &mut kps, &mut desc, false)?;
+        let mut out = Vec::with_capacity(kps.len());
+        for (row, k) in kps.iter().enumerate() {
+            let px = k.pt();
+            let (Ok(bytes), Some(p_camera)) = (
+                desc.at_row::<u8>(row as i32),
+                measure(depth_m, camera, (px.x, px.y), shutter, config),
+            ) else {
+                continue;
+            };
+            if let Ok(descriptor) = <OrbDescriptor>::try_from(bytes) {
+                out.push(OrbPoint {
+                    px,
+                    descriptor,
+                    p_camera,
+                });
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Accepted matches `(query, reference)` between two sets of ORB points.
+fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
+    let mut claimed: Vec<Option<(usize, u32)>> = vec![None; reference.len()];
+    for (qi, q) in query.iter().enumerate() {
+        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+        for (ri, r) in reference.iter().enumerate() {
+            let d = hamming(&q.descriptor, &r.descriptor);
+            if d < best.0 {
+                second = best.0;
+                best = (d, ri);
+            } else if d < second {
+                second = d;
+            }
+        }
+        let (d, ri) = best;
+        if d > MAX_HAMMING || f64::from(d) >= RATIO * f64::from(second) {
+            continue;
+        }
+        // One query per reference feature: the closer wins (the first on a tie).
+        if let Some(slot) = claimed.get_mut(ri) {
+            if slot.is_none_or(|(_, od)| d < od) {
+                *slot = Some((qi, d));
+            }
+        }
+    }
+    claimed
+        .iter()
+        .enumerate()
+        .filter_map(|(ri, c)| c.map(|(qi, _)| (qi, ri)))
+        .collect()
+}
+
+/// A pose found by recovery.
+#[derive(Debug)]
+pub(crate) struct Recovered {
+    pub(crate) world_from_cur: Isometry3<f64>,
+    pub(crate) inliers: usize,
+    pub(crate) iterations: usize,
+    /// Information matrix of the pose (as [`MotionEstimate::information`]).
+    pub(crate) information: Matrix6<f64>,
+    /// Tracks of the inlier features, each carrying its matched world point, with the
+    /// features' measurements in this frame.
+    pub(crate) tracks: Vec<(Track, Option<Measurement>)>,
+    /// Matches with the keyframe the pose was found against.
+    pub(crate) matches: usize,
+}
+
+impl VisualOdometry {
+    /// Looks for the current frame's pose by matching its ORB features against the recent
+    /// keyframes'. `None` when recovery is off or no keyframe gives more than `at_least`
+    /// (and at least `recovery_min_inliers`) inliers. The new tracks' keyframe is the next
+    /// one (`kf_count`), which the caller must start.
+    pub(crate) fn recover(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &Pyramid,
+        at_least: usize,
+    ) -> Result<Option<Recovered>, FrontendError> {
+        if self.config.recovery_keyframes.is_none() || self.recent.keyframes.is_empty() {
+            return Ok(None);
+        }
+        let (camera, config) = (&self.camera, &self.config);
+        let RecentKeyframes { keyframes, orb } = &mut self.recent;
+        let query = orb_points(
+            orb,
+            &pyr.gray,
+            &frame.depth_m,
+            camera,
+            &self.shutter,
+            config,
+        )?;
+        let params = MotionParams {
+            max_iterations: RANSAC_ITERATIONS,
+            min_inliers: config.recovery_min_inliers.max(at_least + 1),
+            ..MotionParams::from_config(config)
+        };
+        // The best keyframe: (estimate, correspondences with query indices).
+        let mut best: Option<(MotionEstimate, Vec<(usize, Correspondence)>)> = None;
+        for kf in keyframes.iter_mut().rev() {
+            if kf.points.is_none() {
+                let still = ShutterMotion::default();
+                let p = orb_points(orb, &kf.pyramid.gray, &kf.depth_m, camera, &still, config)?;
+                kf.points = Some(p);
+            }
+            let points = kf.points.as_deref().unwrap_or(&[]);
+            let world_from_kf = kf.world_from_kf;
+            let pairs: Vec<(usize, Correspondence)> = match_points(&query, points)
+                .into_iter()
+                .filter_map(|(qi, ri)| {
+                    let (q, r) = (query.get(qi)?, points.get(ri)?);
+                    let rot = world_from_kf.rotation.to_rotation_matrix();
+                    let reference = Measurement {
+                        p: world_from_kf * r.p_camera.p,
+                        cov: rot.matrix() * r.p_camera.cov * rot.matrix().transpose(),
+                    };
+                    Some((
+                        qi,
+                        Correspondence {
+                            reference,
+                            current: q.p_camera,
+                        },
+                    ))
+                })
+                .collect();
+            let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
+            let estimate = ransac(&corrs, &params, &mut self.rng).and_then(|(h, flags, it)| {
+                let e = polish(&corrs, h, flags, config.refine_iterations, &params)?;
+                Some(MotionEstimate {
+                    iterations: it,
+                    ..e
+                })
+            });
+            if let Some(e) = estimate {
+                if best
+                    .as_ref()
+                    .is_none_or(|(b, _)| e.inlier_count > b.inlier_count)
+                {
+                    best = Some((e, pairs));
+                }
+            }
+        }
+        let Some((e, pairs)) = best else {
+            return Ok(None);
+        };
+        let keyframe = self.kf_count;
+        let mut tracks = Vec::with_capacity(e.inlier_count);
+        for ((qi, c), inlier) in pairs.iter().zip(&e.inliers) {
+            let Some(q) = query.get(*qi).filter(|_| *inlier) else {
+                continue;
+            };
+            tracks.push((
+                Track {
+                    id: self.next_id,
+                    px: q.px,
+                    point: Some(TrackPoint {
+                        world: c.reference,
+                        observations: 1,
+                    }),
+                    origin_kf: keyframe,
+                    origin_px: q.px,
+                },
+                Some(q.p_camera),
+            ));
+            self.next_id += 1;
+        }
+        Ok(Some(Recovered {
+            world_from_cur: e.ref_from_cur,
+            inliers: e.inlier_count,
+            iterations: e.iterations,
+            information: e.information,
+            tracks,
+            matches: pairs.len(),
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Point3};
+
+    /// A point whose descriptor has the first `ones` bits set.
+    fn point(ones: usize) -> OrbPoint {
+        let mut descriptor = [0u8; 32];
+        for bit in 0..ones {
+            descriptor[bit / 8] |= 1 << (bit % 8);
+        }
+        OrbPoint {
+            px: Point2f::new(0.0, 0.0),
+            descriptor,
+            p_camera: Measurement {
+                p: Point3::origin(),
+                cov: Matrix3::identity(),
+            },
+        }
+    }
+
+    #[test]
+    fn matches_pass_the_distance_bound_the_ratio_test_and_uniqueness() {
+        // Reference descriptors with 0, 100, 140 and 250 bits set.
+        let reference = [point(0), point(100), point(140), point(250)];
+        let query = [
+            point(2),   // 2 from the first, 98 from the second: kept
+            point(120), // 20 from the second and the third: ambiguous, dropped
+            point(245), // 5 from the fourth: kept
+            point(247), // 3 from the fourth: it wins the fourth from the previous one
+            point(195), // 55 from the third and the fourth: too far, and ambiguous
+        ];
+        let matches = match_points(&query, &reference);
+        assert_eq!(matches, vec![(0, 0), (3, 3)]);
+        assert!(match_points(&query, &[]).is_empty());
+    }
+}
