@@ -35,6 +35,8 @@ pub struct MapperRun {
     pub phantoms: Option<PhantomScore>,
     /// The floor's plane fit.
     pub floor: Option<FloorFit>,
+    /// Bytes the mapper held at the end ([`ElevationMapper::memory_bytes`]).
+    pub memory_bytes: usize,
 }
 
 /// Cells within this height of the floor plane (m) count as floor in the flatness fit.
@@ -121,6 +123,7 @@ pub fn map_sequence(
             score,
             phantoms,
             floor,
+            memory_bytes: m.memory_bytes(),
         });
     }
     Ok((runs, counts))

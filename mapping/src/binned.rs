@@ -41,6 +41,15 @@ pub struct Binned {
 }
 
 impl Binned {
+    /// Bytes held by the lists.
+    pub fn memory_bytes(&self) -> usize {
+        self.lists
+            .iter()
+            .flatten()
+            .map(|l| l.capacity() * std::mem::size_of::<CellPoint>())
+            .sum()
+    }
+
     /// The measurements of band `b`, in measurement order (pixel order for depth images).
     pub fn band(&self, b: usize) -> impl Iterator<Item = &CellPoint> + '_ {
         self.lists
@@ -211,6 +220,54 @@ pub fn to_map_points<M: HeightModel + ?Sized>(
         })
         .collect();
     (pts, rej)
+}
+
+/// A frame's measurements as map-frame points after the mappers' own input filters (depth
+/// range, and the depth-edge filter when given): the points a mapper bins, before its
+/// window, in input order, with the counts of what was dropped. For giving another map
+/// representation exactly the same clouds.
+pub fn filtered_map_points<M: HeightModel + ?Sized>(
+    frame: &SensorFrame<'_>,
+    model: &M,
+    edge: Option<&EdgeFilter>,
+) -> (Vec<HeightSample>, Rejections) {
+    let mut rej = Rejections::default();
+    if !frame.pose_is_finite() {
+        rej.bad_pose = frame.len();
+        return (Vec::new(), rej);
+    }
+    let place = Placement::new(&frame.map_from_sensor, model.range_m());
+    let mut out = Vec::new();
+    let mut sink = |r: Result<HeightSample, Reason>| match r {
+        Ok(p) => out.push(p),
+        Err(e) => rej.count(e),
+    };
+    match frame.cloud() {
+        Cloud::Depth { depth_m, camera } => {
+            let mut cache = RayCache::default();
+            depth_slice(
+                DepthSlice {
+                    depth: depth_m,
+                    camera,
+                    rays: cache.rays(camera),
+                    rows: 0..depth_m.height() as usize,
+                    edge,
+                    place: &place,
+                    model,
+                },
+                &mut sink,
+            );
+        }
+        Cloud::Points {
+            points,
+            covariances,
+        } => {
+            for (i, p) in points.iter().enumerate() {
+                sink(place.point(model, p, covariances.get(i)));
+            }
+        }
+    }
+    (out, rej)
 }
 
 /// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its

@@ -226,6 +226,12 @@ impl ElevationMapper for FankhauserMapper {
         "fankhauser"
     }
 
+    fn memory_bytes(&self) -> usize {
+        self.window.memory_bytes()
+            + self.archive.capacity() * std::mem::size_of::<((i64, i64), Cell)>()
+            + self.binned.memory_bytes()
+    }
+
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats {
         let start = Instant::now();
         self.frame_no += 1;

@@ -481,7 +481,8 @@ impl Placement {
 }
 
 pub use crate::binned::{
-    prepare_binned, to_map_points, Binned, CellPoint, SLICES, VAR_MAX_M2, VAR_MIN_M2,
+    filtered_map_points, prepare_binned, to_map_points, Binned, CellPoint, SLICES, VAR_MAX_M2,
+    VAR_MIN_M2,
 };
 
 #[cfg(test)]

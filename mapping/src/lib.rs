@@ -81,6 +81,9 @@ pub trait ElevationMapper {
     /// Every cell mapped so far (the moving window and the cells it left behind), as the
     /// filters left them.
     fn export(&self) -> MapLayers;
+    /// Bytes the map holds (cells, voxel stacks, archive and per-frame buffers; hash-map
+    /// overhead not counted), for memory comparisons with other map representations.
+    fn memory_bytes(&self) -> usize;
     /// The map as its method delivers it: [`Self::export`] followed by the mapper's own
     /// post-processing (the stack mapper's median filter, paper 000), with what it changed.
     /// Mappers without post-processing return `export()` unchanged.

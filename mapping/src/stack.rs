@@ -343,6 +343,15 @@ impl ElevationMapper for StackMapper {
         "stack"
     }
 
+    fn memory_bytes(&self) -> usize {
+        self.window.memory_bytes()
+            + self.stacks.capacity() * std::mem::size_of::<Stack>()
+            + self.accs.capacity() * std::mem::size_of::<Accs>()
+            + self.archive.capacity() * std::mem::size_of::<((i64, i64), Archived)>()
+            + self.binned.memory_bytes()
+            + self.los_table.capacity() * std::mem::size_of::<f32>()
+    }
+
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats {
         let start = Instant::now();
         self.frame_no += 1;

@@ -160,6 +160,11 @@ impl<T: Clone + Default> Window<T> {
         self.cells.get_mut(i)
     }
 
+    /// Bytes held by the cells.
+    pub fn memory_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<T>()
+    }
+
     /// All cells in storage order.
     pub fn cells(&self) -> &[T] {
         &self.cells
