@@ -107,13 +107,33 @@ pub fn num(v: &serde_json::Value, key: &str) -> f64 {
 /// The python of a venv with evo: `$STRIDE_EVO_PYTHON`, else the peers venv of
 /// ../shared/tools/peers/README.md if it exists. `None` when evo is not installed.
 pub fn evo_python() -> Option<PathBuf> {
-    if let Some(p) = std::env::var_os("STRIDE_EVO_PYTHON") {
+    venv_with("evo", "STRIDE_EVO_PYTHON")
+}
+
+/// The python of a venv with pyoctomap (`$STRIDE_OCTOMAP_PYTHON`, else the peers venv).
+/// Missing, it fails the test under `CI=true` and skips it (`None`) elsewhere.
+pub fn octomap_python() -> Option<PathBuf> {
+    let found = venv_with("pyoctomap", "STRIDE_OCTOMAP_PYTHON");
+    if found.is_none() {
+        let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+        assert!(
+            !ci,
+            "no python with pyoctomap ($STRIDE_OCTOMAP_PYTHON); under CI=true this is a failure"
+        );
+        eprintln!("SKIP: no python with pyoctomap");
+    }
+    found
+}
+
+/// `$env_var`, else the peers venv's python if it can import `module`.
+fn venv_with(module: &str, env_var: &str) -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os(env_var) {
         return Some(PathBuf::from(p));
     }
     let venv = PathBuf::from("/tmp/peers-venv/bin/python");
     let ok = venv.is_file()
         && Command::new(&venv)
-            .args(["-c", "import evo"])
+            .args(["-c", &format!("import {module}")])
             .output()
             .map(|o| o.status.success())
             .unwrap_or(false);

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 #[derive(Debug, Args)]
 pub struct MapBenchArgs {
     /// Sequence folder with ground-truth poses (TUM layout) [default: a synthetic sequence
-    /// rendered into a temporary folder].
+    /// rendered into a temporary folder]. With --octomap it may be repeated: one table.
     #[arg(long)]
-    dataset: Option<PathBuf>,
+    dataset: Vec<PathBuf>,
     /// Frames mapped (the median update time is reported).
     #[arg(long, default_value_t = 60)]
     frames: usize,
@@ -26,6 +26,17 @@ pub struct MapBenchArgs {
     /// Time the stack mapper without the see-through check.
     #[arg(long)]
     no_see_through: bool,
+    /// Python of a throwaway venv with pyoctomap and numpy: compare our maps with OctoMap
+    /// on the same clouds (paper 000's Table 2) through scripts/peers/octomap_peer.py
+    /// (never a project dependency). Ray casting at 1 cm takes seconds per frame.
+    #[arg(long, value_name = "PYTHON")]
+    octomap: Option<PathBuf>,
+    /// OctoMap's resolutions (m).
+    #[arg(long, value_delimiter = ',', default_values_t = [0.01, 0.02])]
+    octomap_resolution: Vec<f64>,
+    /// Also write the --octomap table as Markdown to this file.
+    #[arg(long, value_name = "FILE.md", requires = "octomap")]
+    report: Option<PathBuf>,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -38,7 +49,10 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     use stride_mapping::stack::{StackConfig, StackMapper};
     use stride_mapping::ElevationMapper;
     let tmp = tempfile::tempdir()?;
-    let dir = match &a.dataset {
+    if a.dataset.len() > 1 && a.octomap.is_none() {
+        bail!("more than one --dataset needs --octomap");
+    }
+    let dir = match a.dataset.first() {
         Some(d) => d.clone(),
         None => {
             let d = tmp.path().join("seq");
@@ -51,6 +65,20 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             d
         }
     };
+    if let Some(py) = &a.octomap {
+        let dirs = match a.dataset.is_empty() {
+            true => vec![dir],
+            false => a.dataset.clone(),
+        };
+        return super::octomap::octomap_table(
+            &dirs,
+            a.frames,
+            py,
+            &a.octomap_resolution,
+            a.report.as_deref(),
+            a.json,
+        );
+    }
     let seq = TumSequence::open(&dir, None, AssociationOptions::default())?;
     let gt = seq
         .groundtruth
