@@ -63,4 +63,7 @@ fn recovery_finds_frames_that_tracking_loses() {
         "ATE with recovery {ate_with} m, without {ate_without} m"
     );
     assert!(num(&with["timing_ms"]["recover"], "p95") > 0.0, "{with}");
+    let by_status = &with["frames_by_status"];
+    assert_eq!(by_status["recovered"], with["frames_recovered"], "{with}");
+    assert_eq!(by_status["lost"], 0, "{with}");
 }

@@ -271,6 +271,15 @@ fn report_json(
         json!(count(FrameStatus::Recovered)),
     );
     m.insert("frames_lost".into(), json!(count(FrameStatus::Lost)));
+    m.insert(
+        "frames_by_status".into(),
+        json!({
+            "tracked": count(FrameStatus::Tracked),
+            "recovered": count(FrameStatus::Recovered),
+            "lost": count(FrameStatus::Lost),
+            "skipped": count(FrameStatus::Skipped),
+        }),
+    );
     m.insert("frames_skipped".into(), json!(count(FrameStatus::Skipped)));
     m.insert(
         "keyframes".into(),

@@ -210,7 +210,9 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
     if let Some(m) = page.map {
         map_section(&mut rep, j, out, m, page.terrain)?;
     }
-    let stages = ["decode", "detect", "track", "ransac", "refine", "total"];
+    let stages = [
+        "decode", "detect", "track", "ransac", "refine", "recover", "total",
+    ];
     rep.table(
         &["stage", "median (ms)", "p95 (ms)"],
         stages
@@ -266,7 +268,7 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 .with_style(Style::Markers),
                 Series::line(
                     "recovered",
-                    PALETTE[2],
+                    PALETTE[3],
                     out.frames
                         .iter()
                         .filter(|f| f.status == FrameStatus::Recovered)

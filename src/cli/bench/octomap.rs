@@ -219,7 +219,9 @@ pub fn octomap_table(
             f(r, "rmse_m", 1e3, 2),
             f(r, "mean_abs_m", 1e3, 2),
             f(r, "coverage", 1.0, 3),
-            r["phantoms"],
+            r["phantoms"]
+                .as_u64()
+                .map_or("-".to_owned(), |p| p.to_string()),
             f(r, "floor_residual_std_m", 1e3, 1),
             f(r, "floor_tilt_deg", 1.0, 2),
             f(r, "update_ms_median", 1.0, 1),
