@@ -28,7 +28,8 @@ pub struct MapBenchArgs {
     no_see_through: bool,
     /// Python of a throwaway venv with pyoctomap and numpy: compare our maps with OctoMap
     /// on the same clouds (paper 000's Table 2) through scripts/peers/octomap_peer.py
-    /// (never a project dependency). Ray casting at 1 cm takes seconds per frame.
+    /// (never a project dependency), both mappers with their default settings. Ray casting
+    /// at 1 cm takes seconds per frame.
     #[arg(long, value_name = "PYTHON")]
     octomap: Option<PathBuf>,
     /// OctoMap's resolutions (m).
@@ -66,9 +67,10 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
         }
     };
     if let Some(py) = &a.octomap {
-        let dirs = match a.dataset.is_empty() {
-            true => vec![dir],
-            false => a.dataset.clone(),
+        let dirs = if a.dataset.is_empty() {
+            vec![dir]
+        } else {
+            a.dataset.clone()
         };
         return super::octomap::octomap_table(
             &dirs,

@@ -100,9 +100,10 @@ fn one_sequence(
         .clone()
         .with_context(|| format!("{}: no ground-truth poses", dir.display()))?;
     let terrain_path = dir.join("terrain.npy");
-    let terrain = match terrain_path.is_file() {
-        true => Some(read_grid(&terrain_path, None).context("reading terrain.npy")?),
-        false => None,
+    let terrain = if terrain_path.is_file() {
+        Some(read_grid(&terrain_path, None).context("reading terrain.npy")?)
+    } else {
+        None
     };
     let mappers: Vec<Box<dyn ElevationMapper>> = vec![
         Box::new(StackMapper::new(StackConfig::default())?),
@@ -160,7 +161,7 @@ fn one_sequence(
         let bytes = std::fs::read(out.join(&file))?;
         let data: Vec<f32> = bytes
             .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .filter_map(|c| <[u8; 4]>::try_from(c).ok().map(f32::from_le_bytes))
             .collect();
         let grid = Grid::from_vec(geometry, data)
             .with_context(|| format!("{file} does not hold the grid's cells"))?;
