@@ -115,14 +115,20 @@ pub fn evo_python() -> Option<PathBuf> {
 pub fn octomap_python() -> Option<PathBuf> {
     let found = venv_with("pyoctomap", "STRIDE_OCTOMAP_PYTHON");
     if found.is_none() {
-        let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
-        assert!(
-            !ci,
-            "no python with pyoctomap ($STRIDE_OCTOMAP_PYTHON); under CI=true this is a failure"
-        );
-        eprintln!("SKIP: no python with pyoctomap");
+        missing_peer("pyoctomap ($STRIDE_OCTOMAP_PYTHON or /tmp/peers-venv)");
     }
     found
+}
+
+/// A peer tool the test needs is not installed: a failure under `CI=true`, a skip (with a
+/// note on stderr) elsewhere.
+pub fn missing_peer(what: &str) {
+    let ci = std::env::var("CI").is_ok_and(|v| v == "true" || v == "1");
+    assert!(
+        !ci,
+        "{what} is not installed; under CI=true this is a failure"
+    );
+    eprintln!("SKIP: {what} is not installed");
 }
 
 /// `$env_var`, else the peers venv's python if it can import `module`.
