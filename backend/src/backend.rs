@@ -252,7 +252,12 @@ impl Backend {
         }
         // 5. Optimize the local window, drop outliers, cull.
         let window = local_window(&self.map, id, &self.config);
-        let (solve_report, outliers) = self.optimize(&window, self.config.local_iterations)?;
+        let every = self.config.optimize_every_keyframes.max(1) as u64;
+        let (solve_report, outliers) = if id % every == 0 {
+            self.optimize(&window, self.config.local_iterations)?
+        } else {
+            (None, 0)
+        };
         report.solve = solve_report;
         report.outliers = outliers;
         self.tracks = self.map.keyframe(id).map_or_else(HashMap::new, |kf| {

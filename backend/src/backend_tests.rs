@@ -391,3 +391,30 @@ fn the_keyframe_budget_bounds_the_map_and_keeps_culled_poses() {
     let err = Backend::new(camera(), bad).err().unwrap().to_string();
     assert!(err.contains("max_keyframes"), "{err}");
 }
+
+#[test]
+fn optimizing_every_second_keyframe_still_removes_the_drift() {
+    let run = synthetic_run(40, 0.004, 1);
+    let config = BackendConfig {
+        optimize_every_keyframes: 2,
+        ..BackendConfig::default()
+    };
+    let mut backend = Backend::new(camera(), config).unwrap();
+    for input in run.inputs.clone() {
+        let id = input.info.id;
+        let u = backend.add_keyframe(input).unwrap();
+        // Local optimizations run on even keyframes only (the first has nothing to solve).
+        if id > 0 {
+            assert_eq!(u.report.solve.is_some(), id % 2 == 0, "keyframe {id}");
+        }
+    }
+    backend.finish().unwrap();
+    let est: Vec<Isometry3<f64>> = (0..40).map(|k| backend.map().pose_of(k).unwrap()).collect();
+    let (e_ba, e_odo) = (rms(&est, &run.truth), rms(&run.odometry, &run.truth));
+    assert!(
+        e_ba < 0.25 * e_odo && e_ba < 0.01,
+        "every second keyframe {:.1} mm against odometry {:.1} mm",
+        e_ba * 1e3,
+        e_odo * 1e3
+    );
+}

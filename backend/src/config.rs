@@ -38,6 +38,11 @@ pub struct BackendConfig {
     pub max_fixed_keyframes: usize,
     /// Levenberg-Marquardt iterations of a local optimization.
     pub local_iterations: usize,
+    /// A local optimization runs on every this-many-th keyframe (1: every keyframe). 2
+    /// halves the back end's work for 10-20 % more frames/s on two cores; on teddy_200 the
+    /// ATE moved within its spread under small perturbations (4.40 -> 4.23 mm; every 5th
+    /// frame 5.66 -> 6.10 mm). The final optimization is unaffected.
+    pub optimize_every_keyframes: usize,
     /// Iterations of the full optimization at the end of a run.
     pub final_iterations: usize,
     /// When a new keyframe re-observes fewer map points than this, its odometry link joins
@@ -99,6 +104,7 @@ impl Default for BackendConfig {
             window_keyframes: 10,
             max_fixed_keyframes: 20,
             local_iterations: 5,
+            optimize_every_keyframes: 1,
             final_iterations: 20,
             min_reobserved: 30,
             model_noise_m: 0.002,
@@ -136,6 +142,9 @@ impl BackendConfig {
                 self.window_keyframes.to_string(),
                 ">= 2",
             );
+        }
+        if self.optimize_every_keyframes == 0 {
+            return bad("optimize_every_keyframes", "0".into(), ">= 1");
         }
         if self.local_iterations == 0 {
             return bad("local_iterations", "0".into(), ">= 1");
