@@ -42,7 +42,7 @@ const MAX_FUSED_OBSERVATIONS: u32 = 20;
 const OBSERVATION_INFLATION: f64 = 2.0;
 
 /// Rotates a covariance from frame `a` into frame `b` with `b_from_a`'s rotation.
-fn rotate_cov(b_from_a: &Isometry3<f64>, cov: &Matrix3<f64>) -> Matrix3<f64> {
+pub(crate) fn rotate_cov(b_from_a: &Isometry3<f64>, cov: &Matrix3<f64>) -> Matrix3<f64> {
     let r = b_from_a.rotation.to_rotation_matrix();
     r.matrix() * cov * r.matrix().transpose()
 }

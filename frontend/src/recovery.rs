@@ -14,7 +14,7 @@
 
 use crate::error::FrontendError;
 use crate::features::{hamming, OrbDescriptor};
-use crate::keyframe::{Track, TrackPoint};
+use crate::keyframe::{rotate_cov, Track, TrackPoint};
 use crate::klt::Pyramid;
 use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams};
 use crate::points::{measure, Measurement, ShutterMotion};
@@ -248,10 +248,9 @@ impl VisualOdometry {
                 .into_iter()
                 .filter_map(|(qi, ri)| {
                     let (q, r) = (query.get(qi)?, points.get(ri)?);
-                    let rot = world_from_kf.rotation.to_rotation_matrix();
                     let reference = Measurement {
                         p: world_from_kf * r.p_camera.p,
-                        cov: rot.matrix() * r.p_camera.cov * rot.matrix().transpose(),
+                        cov: rotate_cov(&world_from_kf, &r.p_camera.cov),
                     };
                     Some((
                         qi,
