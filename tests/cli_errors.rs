@@ -18,10 +18,7 @@ fn fails(args: &[&str]) -> String {
 
 #[test]
 fn eval_takes_positional_files_like_evo() {
-    let (Some(gt), Some(est)) = (
-        data("trajectories/freiburg1_xyz-groundtruth.txt"),
-        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
-    ) else {
+    let Some((gt, est)) = common::xyz_pair() else {
         return;
     };
     let (gt, est) = (gt.to_str().unwrap(), est.to_str().unwrap());

@@ -20,10 +20,7 @@ fn exit(args: &[&str]) -> (Option<i32>, String, String) {
 
 #[test]
 fn a_suite_exits_0_when_within_its_limits_1_beyond_them_and_2_on_bad_input() {
-    let (Some(gt), Some(est)) = (
-        data("trajectories/freiburg1_xyz-groundtruth.txt"),
-        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
-    ) else {
+    let Some((gt, est)) = common::xyz_pair() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

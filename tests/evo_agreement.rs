@@ -81,10 +81,7 @@ fn duplicated_timestamps_give_evos_numbers() {
     if !have_evo() {
         return;
     }
-    let (Some(gt), Some(est)) = (
-        data("trajectories/freiburg1_xyz-groundtruth.txt"),
-        data("trajectories/freiburg1_xyz-rgbdslam.txt"),
-    ) else {
+    let Some((gt, est)) = common::xyz_pair() else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

@@ -28,6 +28,15 @@ pub fn data(relative: &str) -> Option<PathBuf> {
     }
 }
 
+/// The shared fr1/xyz trajectory pair (ground truth, RGB-D SLAM's estimate), as [`data`]
+/// finds them.
+pub fn xyz_pair() -> Option<(PathBuf, PathBuf)> {
+    Some((
+        data("trajectories/freiburg1_xyz-groundtruth.txt")?,
+        data("trajectories/freiburg1_xyz-rgbdslam.txt")?,
+    ))
+}
+
 /// The `stride` binary built for these tests.
 pub fn stride() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stride"))
