@@ -265,22 +265,18 @@ fn report_json(
     };
     let mut m = Map::new();
     m.insert("frames".into(), json!(out.frames.len()));
-    m.insert("frames_tracked".into(), json!(count(FrameStatus::Tracked)));
-    m.insert(
-        "frames_recovered".into(),
-        json!(count(FrameStatus::Recovered)),
-    );
-    m.insert("frames_lost".into(), json!(count(FrameStatus::Lost)));
-    m.insert(
-        "frames_by_status".into(),
-        json!({
-            "tracked": count(FrameStatus::Tracked),
-            "recovered": count(FrameStatus::Recovered),
-            "lost": count(FrameStatus::Lost),
-            "skipped": count(FrameStatus::Skipped),
-        }),
-    );
-    m.insert("frames_skipped".into(), json!(count(FrameStatus::Skipped)));
+    // Each status's count, both flat (frames_tracked, ...) and in frames_by_status.
+    let mut by_status = Map::new();
+    for s in [
+        FrameStatus::Tracked,
+        FrameStatus::Recovered,
+        FrameStatus::Lost,
+        FrameStatus::Skipped,
+    ] {
+        m.insert(format!("frames_{}", s.as_str()), json!(count(s)));
+        by_status.insert(s.as_str().into(), json!(count(s)));
+    }
+    m.insert("frames_by_status".into(), Value::Object(by_status));
     m.insert(
         "keyframes".into(),
         json!(out.frames.iter().filter(|f| f.keyframe).count()),
