@@ -5,28 +5,7 @@
 
 mod common;
 
-use common::{data, num};
-use std::path::Path;
-
-/// A TUM folder in `dst` with every `k`-th line of `src`'s rgb.txt (depth and ground truth
-/// whole; images linked, not copied), as `../shared/tools/seqtools.py subsample` makes.
-fn subsample(src: &Path, dst: &Path, k: usize) {
-    std::fs::create_dir_all(dst).unwrap();
-    let rgb = std::fs::read_to_string(src.join("rgb.txt")).unwrap();
-    let kept: String = rgb
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .step_by(k)
-        .map(|l| format!("{l}\n"))
-        .collect();
-    std::fs::write(dst.join("rgb.txt"), kept).unwrap();
-    for f in ["depth.txt", "groundtruth.txt"] {
-        std::fs::copy(src.join(f), dst.join(f)).unwrap();
-    }
-    for d in ["rgb", "depth"] {
-        std::os::unix::fs::symlink(src.join(d), dst.join(d)).unwrap();
-    }
-}
+use common::{data, derived, num};
 
 #[test]
 fn recovery_finds_frames_that_tracking_loses() {
@@ -35,7 +14,7 @@ fn recovery_finds_frames_that_tracking_loses() {
     };
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("teddy_every_20th");
-    subsample(&teddy, &seq, 20);
+    derived(&teddy, &seq, |i| i % 20 == 0);
     let off = tmp.path().join("off.toml");
     std::fs::write(
         &off,

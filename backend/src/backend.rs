@@ -143,9 +143,28 @@ impl Backend {
         })
     }
 
+    /// A back end that extends a saved map: its keyframes are kept, the oldest holds the
+    /// gauge, and new keyframes (numbered after the map's) are matched against its points
+    /// like any others. Validates the configuration.
+    pub fn with_map(
+        camera: PinholeCamera,
+        config: BackendConfig,
+        map: Map,
+    ) -> Result<Self, BackendError> {
+        let mut backend = Self::new(camera, config)?;
+        backend.first = map.keyframes().keys().next().copied();
+        backend.map = map;
+        Ok(backend)
+    }
+
     /// The map.
     pub fn map(&self) -> &Map {
         &self.map
+    }
+
+    /// The map, taking the back end apart.
+    pub fn into_map(self) -> Map {
+        self.map
     }
 
     /// The configuration.

@@ -14,6 +14,8 @@
 //! * [`Backend`] ([`backend`]): per keyframe, associate (by track, then by ORB), add points,
 //!   optimize a local window, cull; at the end, optimize everything.
 //! * [`BackendThread`] ([`thread`]): the same in its own thread, over channels.
+//! * [`SavedMap`] ([`map_file`]): a map saved to a file, read back and checked, for a later
+//!   run to localize in and extend.
 //!
 //! Frames: every pose is `world_from_camera` (camera x right, y down, z forward); points
 //! are `p_world`; units are metres and radians. Deterministic: every collection is iterated
@@ -28,6 +30,7 @@ pub mod config;
 mod culling;
 pub mod error;
 pub mod map;
+pub mod map_file;
 pub mod matching;
 mod pose_graph;
 pub mod se3;
@@ -37,4 +40,5 @@ mod window;
 pub use backend::{Backend, KeyframeInput, KeyframeReport, KeyframeUpdate};
 pub use config::{BackendConfig, BackendMode};
 pub use error::BackendError;
+pub use map_file::{MapFileError, SavedMap};
 pub use thread::{BackendThread, Finished};

@@ -32,4 +32,22 @@ pub enum FrontendError {
         /// What is allowed.
         allowed: &'static str,
     },
+    /// The first frame of a run in a saved map could not be placed in it.
+    #[error(
+        "frame {index} ({t_s:.6} s): not localized in the saved map: its {features} ORB features with depth matched at most {most_matches} of one keyframe's (of {keyframes}), and no keyframe gave {min_inliers} RANSAC inliers; start where the map was made"
+    )]
+    NotLocalized {
+        /// Frame index.
+        index: usize,
+        /// Frame time (s).
+        t_s: f64,
+        /// Keyframes of the map.
+        keyframes: usize,
+        /// The frame's ORB features with depth.
+        features: usize,
+        /// The most descriptor matches with one keyframe.
+        most_matches: usize,
+        /// Inliers needed (`recovery_min_inliers`).
+        min_inliers: usize,
+    },
 }

@@ -11,6 +11,10 @@
 //! lower inlier ratio) gives the pose against the keyframe with the most inliers, and the
 //! matched points, placed in the world by that keyframe, become the new keyframe's tracks:
 //! tracking resumes on old points instead of starting afresh at a predicted pose.
+//!
+//! Relocalization in a saved map works the same way against the map's keyframes
+//! ([`Anchor`]): the frame's features are matched against every keyframe's, and RANSAC runs
+//! on the few with the most matches. A run that starts in a saved map begins with it.
 
 use crate::error::FrontendError;
 use crate::features::{hamming, OrbDescriptor};
@@ -20,7 +24,7 @@ use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams
 use crate::points::{measure, Measurement, ShutterMotion};
 use crate::vo::VisualOdometry;
 use crate::VoConfig;
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix6, Point2};
 use opencv::core::{KeyPoint, Mat, Point2f, Ptr, Vector};
 use opencv::features2d::{Feature2DTrait, ORB_ScoreType, ORB};
 use opencv::prelude::*;
@@ -29,6 +33,7 @@ use std::rc::Rc;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::image::DepthImage;
+use stride_core::rng::SplitMix64;
 
 /// Largest Hamming distance (of 256 bits) of an accepted match: ORB-SLAM's stricter bound.
 pub const MAX_HAMMING: u32 = 50;
@@ -47,6 +52,69 @@ const SPACING_RAD: f64 = 0.26;
 /// RANSAC iterations for the matches: their inlier ratio can be a quarter, where 300 (the
 /// tracking default) finds a clean sample only about half of the time.
 const RANSAC_ITERATIONS: usize = 2000;
+
+/// Keyframes of a saved map tried with RANSAC when relocalizing in it: those with the most
+/// descriptor matches.
+pub const RELOCALIZATION_CANDIDATES: usize = 5;
+
+/// A feature of a saved map's keyframe that observes a map point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AnchorPoint {
+    /// Pixel position in the keyframe (px).
+    pub px: Point2<f32>,
+    /// ORB descriptor.
+    pub descriptor: OrbDescriptor,
+    /// The map point in the keyframe's camera frame (m), with the covariance of the
+    /// keyframe's measurement of it (camera frame, m^2).
+    pub p_camera: Measurement,
+}
+
+/// A keyframe of a saved map, as relocalization needs it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Anchor {
+    /// The map's identifier of the keyframe.
+    pub id: u64,
+    /// `world_from_camera` in the map's frame (m).
+    pub world_from_camera: Isometry3<f64>,
+    /// Its features that observe map points.
+    pub points: Vec<AnchorPoint>,
+}
+
+/// An anchor keyframe with its features as the matcher takes them.
+pub(crate) struct AnchorKeyframe {
+    id: u64,
+    world_from_camera: Isometry3<f64>,
+    points: Vec<OrbPoint>,
+}
+
+impl From<Anchor> for AnchorKeyframe {
+    fn from(a: Anchor) -> Self {
+        Self {
+            id: a.id,
+            world_from_camera: a.world_from_camera,
+            points: a
+                .points
+                .iter()
+                .map(|p| OrbPoint {
+                    px: Point2f::new(p.px.x, p.px.y),
+                    descriptor: p.descriptor,
+                    p_camera: p.p_camera,
+                })
+                .collect(),
+        }
+    }
+}
+
+/// What a failed relocalization found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NotLocalized {
+    /// Keyframes of the map.
+    pub keyframes: usize,
+    /// ORB features of the frame with depth.
+    pub features: usize,
+    /// The most descriptor matches with one keyframe.
+    pub most_matches: usize,
+}
 
 /// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
 /// camera's frame (m, covariance m^2).
@@ -205,6 +273,61 @@ pub(crate) struct Recovered {
     pub(crate) matches: usize,
 }
 
+/// The pose of a frame against one reference keyframe: the matches of `query` with the
+/// keyframe's `points` (placed in the world by `world_from_kf`), RANSAC, polish. Returns the
+/// estimate and the correspondences with their query indices.
+fn estimate_against(
+    query: &[OrbPoint],
+    points: &[OrbPoint],
+    world_from_kf: &Isometry3<f64>,
+    params: &MotionParams,
+    refine_iterations: usize,
+    rng: &mut SplitMix64,
+) -> Option<(MotionEstimate, Vec<(usize, Correspondence)>)> {
+    let pairs: Vec<(usize, Correspondence)> = match_points(query, points)
+        .into_iter()
+        .filter_map(|(qi, ri)| {
+            let (q, r) = (query.get(qi)?, points.get(ri)?);
+            let reference = Measurement {
+                p: world_from_kf * r.p_camera.p,
+                cov: rotate_cov(world_from_kf, &r.p_camera.cov),
+            };
+            Some((
+                qi,
+                Correspondence {
+                    reference,
+                    current: q.p_camera,
+                },
+            ))
+        })
+        .collect();
+    let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
+    let (h, flags, it) = ransac(&corrs, params, rng)?;
+    let e = polish(&corrs, h, flags, refine_iterations, params)?;
+    Some((
+        MotionEstimate {
+            iterations: it,
+            ..e
+        },
+        pairs,
+    ))
+}
+
+/// Keeps the estimate with more inliers (the earlier one on a tie).
+fn keep_best(
+    best: &mut Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
+    candidate: Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
+) {
+    if let Some((e, pairs)) = candidate {
+        if best
+            .as_ref()
+            .is_none_or(|(b, _)| e.inlier_count > b.inlier_count)
+        {
+            *best = Some((e, pairs));
+        }
+    }
+}
+
 impl VisualOdometry {
     /// Looks for the current frame's pose by matching its ORB features against the recent
     /// keyframes'. `None` when recovery is off or no keyframe gives more than `at_least`
@@ -234,8 +357,7 @@ impl VisualOdometry {
             min_inliers: config.recovery_min_inliers.max(at_least + 1),
             ..MotionParams::from_config(config)
         };
-        // The best keyframe: (estimate, correspondences with query indices).
-        let mut best: Option<(MotionEstimate, Vec<(usize, Correspondence)>)> = None;
+        let mut best = None;
         for kf in keyframes.iter_mut().rev() {
             if kf.points.is_none() {
                 let still = ShutterMotion::default();
@@ -243,44 +365,79 @@ impl VisualOdometry {
                 kf.points = Some(p);
             }
             let points = kf.points.as_deref().unwrap_or(&[]);
-            let world_from_kf = kf.world_from_kf;
-            let pairs: Vec<(usize, Correspondence)> = match_points(&query, points)
-                .into_iter()
-                .filter_map(|(qi, ri)| {
-                    let (q, r) = (query.get(qi)?, points.get(ri)?);
-                    let reference = Measurement {
-                        p: world_from_kf * r.p_camera.p,
-                        cov: rotate_cov(&world_from_kf, &r.p_camera.cov),
-                    };
-                    Some((
-                        qi,
-                        Correspondence {
-                            reference,
-                            current: q.p_camera,
-                        },
-                    ))
-                })
-                .collect();
-            let corrs: Vec<Correspondence> = pairs.iter().map(|(_, c)| *c).collect();
-            let estimate = ransac(&corrs, &params, &mut self.rng).and_then(|(h, flags, it)| {
-                let e = polish(&corrs, h, flags, config.refine_iterations, &params)?;
-                Some(MotionEstimate {
-                    iterations: it,
-                    ..e
-                })
-            });
-            if let Some(e) = estimate {
-                if best
-                    .as_ref()
-                    .is_none_or(|(b, _)| e.inlier_count > b.inlier_count)
-                {
-                    best = Some((e, pairs));
-                }
-            }
+            let found = estimate_against(
+                &query,
+                points,
+                &kf.world_from_kf,
+                &params,
+                config.refine_iterations,
+                &mut self.rng,
+            );
+            keep_best(&mut best, found);
         }
-        let Some((e, pairs)) = best else {
-            return Ok(None);
+        Ok(best.map(|(e, pairs)| self.recovered(&query, e, &pairs)))
+    }
+
+    /// Looks for the current frame's pose in a saved map: its ORB features are matched
+    /// against every anchor keyframe's, and RANSAC runs on the
+    /// [`RELOCALIZATION_CANDIDATES`] keyframes with the most matches. `Err` with what was
+    /// found when no keyframe gives `recovery_min_inliers` inliers.
+    pub(crate) fn relocalize(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &Pyramid,
+    ) -> Result<Result<Recovered, NotLocalized>, FrontendError> {
+        let (camera, config) = (&self.camera, &self.config);
+        let query = orb_points(
+            &mut self.recent.orb,
+            &pyr.gray,
+            &frame.depth_m,
+            camera,
+            &ShutterMotion::default(),
+            config,
+        )?;
+        let params = MotionParams {
+            max_iterations: RANSAC_ITERATIONS,
+            min_inliers: config.recovery_min_inliers,
+            ..MotionParams::from_config(config)
         };
+        let mut ranked: Vec<(usize, &AnchorKeyframe)> = self
+            .anchors
+            .iter()
+            .map(|a| (match_points(&query, &a.points).len(), a))
+            .collect();
+        ranked.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
+        let most_matches = ranked.first().map_or(0, |r| r.0);
+        let mut best = None;
+        for (_, a) in ranked.iter().take(RELOCALIZATION_CANDIDATES) {
+            let found = estimate_against(
+                &query,
+                &a.points,
+                &a.world_from_camera,
+                &params,
+                config.refine_iterations,
+                &mut self.rng,
+            );
+            keep_best(&mut best, found);
+        }
+        Ok(match best {
+            Some((e, pairs)) => Ok(self.recovered(&query, e, &pairs)),
+            None => Err(NotLocalized {
+                keyframes: self.anchors.len(),
+                features: query.len(),
+                most_matches,
+            }),
+        })
+    }
+
+    /// The pose and the new tracks (the inliers, carrying their matched world points) of
+    /// an estimate from [`estimate_against`].
+    fn recovered(
+        &mut self,
+        query: &[OrbPoint],
+        e: MotionEstimate,
+        pairs: &[(usize, Correspondence)],
+    ) -> Recovered {
         let keyframe = self.kf_count;
         let mut tracks = Vec::with_capacity(e.inlier_count);
         for ((qi, c), inlier) in pairs.iter().zip(&e.inliers) {
@@ -302,14 +459,14 @@ impl VisualOdometry {
             ));
             self.next_id += 1;
         }
-        Ok(Some(Recovered {
+        Recovered {
             world_from_cur: e.ref_from_cur,
             inliers: e.inlier_count,
             iterations: e.iterations,
             information: e.information,
             tracks,
             matches: pairs.len(),
-        }))
+        }
     }
 }
 

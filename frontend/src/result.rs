@@ -15,6 +15,9 @@ pub enum TrackingStatus {
     /// Lucas-Kanade could not follow (or kept too few inliers); the pose was found by
     /// matching ORB features against recent keyframes ([`crate::recovery`]).
     Recovered,
+    /// The first frame of a run in a saved map: found by matching ORB features against
+    /// the map's keyframes ([`crate::recovery`]).
+    Relocalized,
     /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
     Lost,
 }
@@ -26,6 +29,7 @@ impl TrackingStatus {
             TrackingStatus::Initialized => "initialized",
             TrackingStatus::Tracked => "tracked",
             TrackingStatus::Recovered => "recovered",
+            TrackingStatus::Relocalized => "relocalized",
             TrackingStatus::Lost => "lost",
         }
     }

@@ -32,13 +32,14 @@ use crate::motion::{
     is_finite, is_inlier, polish, ransac, Correspondence, MotionEstimate, MotionParams,
 };
 use crate::points::{measure, Measurement, ShutterMotion};
-use crate::recovery::RecentKeyframes;
+use crate::recovery::{Anchor, AnchorKeyframe, RecentKeyframes};
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
 use opencv::core::Point2f;
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
+use stride_core::image::GrayImage;
 use stride_core::rng::SplitMix64;
 
 /// One attempt at the pose: the tracks used, their pairs and the estimate.
@@ -68,14 +69,19 @@ pub struct VisualOdometry {
 
     /// Pyramids of the keyframes that live tracks were detected in, by keyframe number.
     pub(crate) kf_pyramids: Vec<(u64, std::rc::Rc<Pyramid>)>,
-    /// Keyframes made so far (the next keyframe's identifier).
+    /// The next keyframe's identifier (keyframes made so far, plus `kf_first`).
     pub(crate) kf_count: u64,
+    /// The first keyframe's identifier (0, or after a saved map's).
+    kf_first: u64,
     pub(crate) next_id: u64,
     pub(crate) rng: SplitMix64,
     /// ORB features of the recent keyframes, for the wide-baseline recovery.
     pub(crate) recent: RecentKeyframes,
     /// The camera's motion during this frame's readout (rolling shutter).
     pub(crate) shutter: ShutterMotion,
+    /// Keyframes of a saved map the first frame is localized in (empty: the first frame
+    /// defines the world).
+    pub(crate) anchors: Vec<AnchorKeyframe>,
 }
 
 /// Scales a motion by `ratio` (translation linearly, rotation along its axis).
@@ -105,10 +111,24 @@ impl VisualOdometry {
 
             kf_pyramids: Vec::new(),
             kf_count: 0,
+            kf_first: 0,
             next_id: 0,
             recent: RecentKeyframes::new()?,
             shutter: ShutterMotion::default(),
+            anchors: Vec::new(),
         })
+    }
+
+    /// Starts the run in a saved map instead of at the identity: the first frame is
+    /// relocalized against the map's keyframes `anchors` (its frame becomes the world), and
+    /// keyframes are numbered from `first_keyframe_id` on, after the map's. Call before the
+    /// first frame. An empty `anchors` leaves the first frame defining the world.
+    pub fn start_in_map(&mut self, anchors: Vec<Anchor>, first_keyframe_id: u64) {
+        self.anchors = anchors.into_iter().map(AnchorKeyframe::from).collect();
+        if self.kf_count == self.kf_first {
+            self.kf_count = first_keyframe_id;
+            self.kf_first = first_keyframe_id;
+        }
     }
 
     /// The configuration.
@@ -133,15 +153,73 @@ impl VisualOdometry {
     /// The current keyframe's identifier and `world_from_camera` (none before the first
     /// frame).
     pub fn current_keyframe(&self) -> Option<(u64, Isometry3<f64>)> {
-        self.kf_count
-            .checked_sub(1)
-            .map(|id| (id, self.world_from_kf))
+        (self.kf_count > self.kf_first).then(|| (self.kf_count - 1, self.world_from_kf))
     }
 
     /// The pose predicted for time `t_s` by the constant-velocity model (for frames that
     /// could not even be loaded).
     pub fn predict(&self, t_s: f64) -> Isometry3<f64> {
         self.world_from_prev * self.predicted_prev_from_cur(t_s)
+    }
+
+    /// The first frame: it defines the world, or, in a saved map, is relocalized in it
+    /// (an error when that fails; the next frame tries again).
+    fn first_frame(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &std::rc::Rc<Pyramid>,
+        gray_img: &GrayImage,
+        start: Instant,
+        mut timing: StageTimes,
+    ) -> Result<FrameResult, FrontendError> {
+        let (mut status, mut world_from_cur) = (TrackingStatus::Initialized, Isometry3::identity());
+        let (mut inliers, mut iterations, mut correspondences) = (0, 0, 0);
+        let mut information = Matrix6::zeros();
+        let mut measured = Vec::new();
+        if !self.anchors.is_empty() {
+            let t = Instant::now();
+            let r = self
+                .relocalize(frame, pyr)?
+                .map_err(|n| FrontendError::NotLocalized {
+                    index: frame.index,
+                    t_s: frame.t_s,
+                    keyframes: n.keyframes,
+                    features: n.features,
+                    most_matches: n.most_matches,
+                    min_inliers: self.config.recovery_min_inliers,
+                })?;
+            timing.recover_s = t.elapsed().as_secs_f64();
+            status = TrackingStatus::Relocalized;
+            world_from_cur = r.world_from_cur;
+            (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
+            correspondences = r.matches;
+            (self.tracks, measured) = r.tracks.into_iter().unzip();
+        }
+        self.world_from_prev = world_from_cur;
+        timing.track_s = start.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let tracked = self.tracks.len();
+        let info = self.start_keyframe(frame, pyr, gray_img, &world_from_cur, measured, None)?;
+        timing.detect_s = t.elapsed().as_secs_f64();
+        self.prev = Some(std::rc::Rc::clone(pyr));
+        self.prev_t = frame.t_s;
+        timing.total_s = start.elapsed().as_secs_f64();
+        Ok(FrameResult {
+            index: frame.index,
+            t_s: frame.t_s,
+            world_from_camera: world_from_cur,
+            keyframe_id: info.id,
+            keyframe_from_camera: Isometry3::identity(),
+            status,
+            keyframe: true,
+            tracked,
+            correspondences,
+            inliers,
+            ransac_iterations: iterations,
+            information,
+            timing,
+            new_keyframe: Some(info),
+        })
     }
 
     /// Processes the next frame.
@@ -164,38 +242,7 @@ impl VisualOdometry {
         let pyr = std::rc::Rc::new(Pyramid::new(&gray_img, &self.config)?);
 
         let Some(prev) = self.prev.take() else {
-            // First frame: it defines the world.
-            self.world_from_prev = Isometry3::identity();
-            timing.track_s = start.elapsed().as_secs_f64();
-            let t = Instant::now();
-            let info = self.start_keyframe(
-                frame,
-                &pyr,
-                &gray_img,
-                &Isometry3::identity(),
-                Vec::new(),
-                None,
-            )?;
-            timing.detect_s = t.elapsed().as_secs_f64();
-            self.prev = Some(pyr);
-            self.prev_t = frame.t_s;
-            timing.total_s = start.elapsed().as_secs_f64();
-            return Ok(FrameResult {
-                index: frame.index,
-                t_s: frame.t_s,
-                world_from_camera: Isometry3::identity(),
-                keyframe_id: info.id,
-                keyframe_from_camera: Isometry3::identity(),
-                status: TrackingStatus::Initialized,
-                keyframe: true,
-                tracked: 0,
-                correspondences: 0,
-                inliers: 0,
-                ransac_iterations: 0,
-                information: Matrix6::zeros(),
-                timing,
-                new_keyframe: Some(info),
-            });
+            return self.first_frame(frame, &pyr, &gray_img, start, timing);
         };
 
         // 1. Predict and track.

@@ -229,6 +229,8 @@ fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
         camera_height_m: None,
         world_from_groundtruth: true,
         ignore_accelerometer: false,
+        save_map: None,
+        load_map: None,
     }
 }
 

@@ -7,10 +7,11 @@ use clap::Args;
 use serde_json::Value;
 use std::fmt::Write as _;
 use std::path::PathBuf;
+use std::time::Instant;
 use stride::config::Config;
 use stride::pipeline::run_sequence;
 use stride::pipeline::world::WorldPlan;
-use stride_backend::{BackendConfig, BackendMode};
+use stride_backend::{BackendConfig, BackendMode, SavedMap};
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_frontend::VoConfig;
 
@@ -82,6 +83,15 @@ pub struct RunArgs {
     /// height).
     #[arg(long)]
     pub ignore_accelerometer: bool,
+    /// Save the final map (keyframes, points, descriptors, covisibility, the world frame)
+    /// to this file for a later `--load-map` (format: docs/map-format.md). Needs a back end.
+    #[arg(long, value_name = "FILE.json")]
+    pub save_map: Option<PathBuf>,
+    /// Start in a map saved by `--save-map`: the first frame is relocalized in it (an error
+    /// when it cannot be), poses come out in that map's world, and the back end extends the
+    /// map. Made with the same camera.
+    #[arg(long, value_name = "FILE.json", conflicts_with_all = ["camera_pitch_deg", "world_from_groundtruth"])]
+    pub load_map: Option<PathBuf>,
 }
 
 /// The back end to run.
@@ -239,14 +249,47 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         seq.camera_source
     );
     stride_frontend::set_opencv_threads(if a.deterministic { 1 } else { 2 })?;
+    if a.save_map.is_some() && config.backend.is_none() {
+        anyhow::bail!("--save-map needs a back end (the odometry alone keeps no map)");
+    }
+    let mut pipeline = config.pipeline(a.world_plan(&seq)?);
+    if let Some(path) = &a.load_map {
+        let t = Instant::now();
+        let saved = SavedMap::load(path, &seq.camera.camera)?;
+        tracing::info!(
+            "loaded {}: {} keyframes, {} points in {:.0} ms; world from {}",
+            path.display(),
+            saved.map.keyframes().len(),
+            saved.map.points().len(),
+            t.elapsed().as_secs_f64() * 1e3,
+            saved.world
+        );
+        pipeline.saved_map = Some(saved);
+    }
     let total = a.max_frames.map_or(seq.len(), |m| m.min(seq.len()));
     let pb = crate::cli::progress_bar(total, "tracking", true);
-    let out = run_sequence(
-        &seq,
-        config.pipeline(a.world_plan(&seq)?),
-        a.max_frames,
-        |_| pb.inc(1),
-    )?;
+    let mut out = run_sequence(&seq, pipeline, a.max_frames, |_| pb.inc(1))?;
     pb.finish_and_clear();
-    super::run_files::write_run(a, &config, &seq, out)
+    let to_save = match (&a.save_map, out.run.backend.as_mut()) {
+        (Some(path), Some(b)) => Some((path, std::mem::take(&mut b.map), out.run.world)),
+        _ => None,
+    };
+    let summary = super::run_files::write_run(a, &config, &seq, out)?;
+    if let Some((path, map, world)) = to_save {
+        let saved = SavedMap {
+            camera: seq.camera.camera,
+            map,
+            world_from_map: world.world_from_slam,
+            world: world.describe(),
+            gravity_aligned: world.is_gravity_aligned(),
+        };
+        saved.save(path)?;
+        tracing::info!(
+            "map saved to {}: {} keyframes, {} points",
+            path.display(),
+            saved.map.keyframes().len(),
+            saved.map.points().len()
+        );
+    }
+    Ok(summary)
 }

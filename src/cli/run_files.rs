@@ -270,6 +270,7 @@ fn report_json(
     for s in [
         FrameStatus::Tracked,
         FrameStatus::Recovered,
+        FrameStatus::Relocalized,
         FrameStatus::Lost,
         FrameStatus::Skipped,
     ] {
@@ -308,8 +309,9 @@ fn report_json(
                 WorldSource::Mounting => "mounting",
                 WorldSource::Reference => "reference trajectory",
                 WorldSource::FirstCamera => "first camera",
+                WorldSource::SavedMap { .. } => "saved map",
             },
-            "gravity_aligned": out.world.source != WorldSource::FirstCamera,
+            "gravity_aligned": out.world.is_gravity_aligned(),
             "description": out.world.describe(),
             "first_camera_height_m": height_m,
             "first_camera_pitch_deg": pitch_deg,
@@ -351,6 +353,15 @@ fn report_json(
         serde_json::to_value(config).unwrap_or(Value::Null),
     );
     m.insert("dataset".into(), json!(a.dataset.display().to_string()));
+    // The saved maps read and written (null when none), and how often the run placed
+    // itself in one.
+    let path = |p: &Option<std::path::PathBuf>| p.as_ref().map(|p| p.display().to_string());
+    m.insert("load_map".into(), json!(path(&a.load_map)));
+    m.insert("save_map".into(), json!(path(&a.save_map)));
+    m.insert(
+        "relocalizations".into(),
+        json!(count(FrameStatus::Relocalized)),
+    );
     m.insert("camera".into(), json!(seq.camera_source.to_string()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());

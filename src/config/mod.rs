@@ -172,6 +172,7 @@ impl Config {
             backend: self.backend.clone().map(|b| (b, self.schedule.schedule())),
             world,
             map: self.map.clone(),
+            saved_map: None,
         }
     }
 }

@@ -35,14 +35,14 @@ pub use stats::{median_p95, slam_ate_options};
 
 use slam::Slam;
 use std::time::Instant;
-use stride_backend::BackendConfig;
+use stride_backend::{BackendConfig, SavedMap};
 use stride_core::frame::RgbdFrame;
 use stride_datasets::camera_config::CameraConfig;
 use stride_frontend::VoConfig;
 use stride_mapping::MapLayers;
 use terrain::{Terrain, TerrainConfig, TerrainStats};
 use terrain_thread::TerrainThread;
-use world::{WorldPlan, WorldSource};
+use world::{WorldFrame, WorldPlan, WorldSource};
 
 /// Every stage's parameters.
 #[derive(Debug, Clone)]
@@ -57,6 +57,9 @@ pub struct PipelineConfig {
     pub world: WorldPlan,
     /// The elevation map; `None` for poses only.
     pub map: Option<TerrainConfig>,
+    /// A saved map to start in: the first frame is relocalized in it, the back end extends
+    /// it, and its world replaces `world`. `None` starts a new map at the first frame.
+    pub saved_map: Option<SavedMap>,
 }
 
 impl Default for PipelineConfig {
@@ -73,6 +76,7 @@ impl Default for PipelineConfig {
             )),
             world: WorldPlan::Floor,
             map: Some(TerrainConfig::default()),
+            saved_map: None,
         }
     }
 }
@@ -134,7 +138,17 @@ impl Pipeline {
             .map
             .map(|c| TerrainThread::spawn(Terrain::new(&camera.camera, c)?))
             .transpose()?;
-        let slam = Slam::new(camera, config.odometry, config.backend)?.with_world(config.world);
+        let world = match &config.saved_map {
+            Some(s) => WorldPlan::Given(WorldFrame {
+                world_from_slam: s.world_from_map,
+                source: WorldSource::SavedMap {
+                    gravity_aligned: s.gravity_aligned,
+                },
+            }),
+            None => config.world,
+        };
+        let slam =
+            Slam::new(camera, config.odometry, config.backend, config.saved_map)?.with_world(world);
         Ok(Self {
             slam,
             terrain,
@@ -225,7 +239,7 @@ impl Pipeline {
     pub fn finish(self) -> Result<PipelineOutput, PipelineError> {
         let run = self.slam.finish()?;
         let map = match self.terrain {
-            Some(_) if run.world.source == WorldSource::FirstCamera => {
+            Some(_) if !run.world.is_gravity_aligned() => {
                 tracing::warn!(
                     "no elevation map: the world frame is not gravity-aligned (no floor seen, no mounting given)"
                 );

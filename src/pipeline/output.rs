@@ -15,6 +15,9 @@ pub enum FrameStatus {
     /// Lucas-Kanade could not follow it; found by matching ORB features against recent
     /// keyframes (the odometry's wide-baseline recovery).
     Recovered,
+    /// The first frame of a run in a saved map: placed in it by matching ORB features
+    /// against the map's keyframes.
+    Relocalized,
     /// The odometry could not estimate it: predicted by constant velocity.
     Lost,
     /// The frame could not be loaded: predicted by constant velocity.
@@ -27,6 +30,7 @@ impl FrameStatus {
         match self {
             FrameStatus::Tracked => "tracked",
             FrameStatus::Recovered => "recovered",
+            FrameStatus::Relocalized => "relocalized",
             FrameStatus::Lost => "lost",
             FrameStatus::Skipped => "skipped",
         }
@@ -84,6 +88,8 @@ pub struct BackendSummary {
     /// Final `world_from_camera` of every keyframe ever made (a culled one's through the
     /// keyframe it is kept relative to), by identifier.
     pub keyframe_poses: Vec<(u64, Isometry3<f64>)>,
+    /// The final map itself, in the SLAM's frame (what `--save-map` writes).
+    pub map: stride_backend::map::Map,
 }
 
 impl BackendSummary {

@@ -23,7 +23,7 @@ use super::PipelineError;
 use nalgebra::Isometry3;
 use std::collections::VecDeque;
 use std::time::Instant;
-use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput};
+use stride_backend::{Backend, BackendConfig, BackendThread, KeyframeInput, SavedMap};
 use stride_core::frame::RgbdFrame;
 use stride_core::plane::Plane;
 use stride_datasets::camera_config::CameraConfig;
@@ -52,21 +52,30 @@ pub struct Slam {
 
 impl Slam {
     /// The odometry for `camera` (its rolling-shutter readout time replaces the one in
-    /// `config`), and the back end beside it when `backend` is given.
+    /// `config`), and the back end beside it when `backend` is given. With a `saved` map,
+    /// the first frame is relocalized in it and the back end extends it.
     pub fn new(
         camera: &CameraConfig,
         config: VoConfig,
         backend: Option<(BackendConfig, Schedule)>,
+        saved: Option<SavedMap>,
     ) -> Result<Self, PipelineError> {
         let config = VoConfig {
             rolling_shutter_s: camera.rolling_shutter_s,
             ..config
         };
         let camera = camera.camera;
-        let vo = VisualOdometry::new(camera, config).map_err(PipelineError::Odometry)?;
+        let mut vo = VisualOdometry::new(camera, config).map_err(PipelineError::Odometry)?;
+        let prior = saved.map(|s| {
+            vo.start_in_map(s.anchors(), s.next_keyframe_id());
+            s.map
+        });
         let coupling = match backend {
             Some((config, schedule)) => Some(Coupling {
-                thread: BackendThread::spawn(Backend::new(camera, config.clone())?)?,
+                thread: BackendThread::spawn(match prior {
+                    Some(map) => Backend::with_map(camera, config.clone(), map)?,
+                    None => Backend::new(camera, config.clone())?,
+                })?,
                 config,
                 schedule,
                 queue: VecDeque::new(),
@@ -105,6 +114,7 @@ impl Slam {
                 self.accelerometer = Some(samples);
                 None
             }
+            WorldPlan::Given(world) => Some(world),
         };
         self
     }
@@ -157,6 +167,15 @@ impl Slam {
                 r.index, r.t_s, r.tracked, r.inliers
             );
         }
+        if r.status == TrackingStatus::Relocalized {
+            tracing::info!(
+                "frame {} ({:.6} s): relocalized in the saved map ({} inliers of {} matches)",
+                r.index,
+                r.t_s,
+                r.inliers,
+                r.correspondences
+            );
+        }
         if r.status == TrackingStatus::Recovered {
             tracing::info!(
                 "frame {} ({:.6} s): recovered by ORB matching against recent keyframes ({} inliers of {} matches)",
@@ -185,6 +204,7 @@ impl Slam {
             status: match r.status {
                 TrackingStatus::Lost => FrameStatus::Lost,
                 TrackingStatus::Recovered => FrameStatus::Recovered,
+                TrackingStatus::Relocalized => FrameStatus::Relocalized,
                 TrackingStatus::Initialized | TrackingStatus::Tracked => FrameStatus::Tracked,
             },
             keyframe: r.keyframe,

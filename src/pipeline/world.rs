@@ -64,6 +64,11 @@ pub enum WorldSource {
     Reference,
     /// Nothing: the first camera's frame (not gravity-aligned).
     FirstCamera,
+    /// The world of a saved map the run localized in.
+    SavedMap {
+        /// Whether that world is gravity-aligned.
+        gravity_aligned: bool,
+    },
 }
 
 /// How the world frame is to be found.
@@ -85,6 +90,8 @@ pub enum WorldPlan {
     /// The world of a reference trajectory (`world_from_camera`, z up): the first frame
     /// within its time span gets the reference's pose there.
     Reference(stride_core::trajectory::Trajectory),
+    /// A world known beforehand (a saved map's).
+    Given(WorldFrame),
 }
 
 /// The world frame: `world_from_slam` and where it came from.
@@ -220,6 +227,18 @@ impl WorldFrame {
         })
     }
 
+    /// Whether z is up (every source but the first camera's frame, and a saved map's
+    /// world that was not).
+    pub fn is_gravity_aligned(&self) -> bool {
+        !matches!(
+            self.source,
+            WorldSource::FirstCamera
+                | WorldSource::SavedMap {
+                    gravity_aligned: false
+                }
+        )
+    }
+
     /// A one-line description for logs and reports.
     pub fn describe(&self) -> String {
         let (roll_deg, pitch_deg, height_m) = self.first_camera_attitude();
@@ -242,6 +261,10 @@ impl WorldFrame {
                         not gravity-aligned"
                     .into()
             }
+            WorldSource::SavedMap {
+                gravity_aligned: false,
+            } => return "the saved map's frame: not gravity-aligned".into(),
+            WorldSource::SavedMap { .. } => "the saved map's world".into(),
         };
         format!(
             "z up from {how}: first camera {height_m:.3} m above the floor, pitched down \

@@ -28,6 +28,28 @@ pub fn data(relative: &str) -> Option<PathBuf> {
     }
 }
 
+/// A TUM folder in `dst` with the lines of `src`'s rgb.txt whose (0-based, comments
+/// excluded) index passes `keep`; depth.txt and the ground truth whole, images linked, not
+/// copied: what `../shared/tools/seqtools.py subsample` and `range` make.
+pub fn derived(src: &std::path::Path, dst: &std::path::Path, keep: impl Fn(usize) -> bool) {
+    std::fs::create_dir_all(dst).unwrap();
+    let rgb = std::fs::read_to_string(src.join("rgb.txt")).unwrap();
+    let kept: String = rgb
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .enumerate()
+        .filter(|(i, _)| keep(*i))
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
+    std::fs::write(dst.join("rgb.txt"), kept).unwrap();
+    for f in ["depth.txt", "groundtruth.txt"] {
+        std::fs::copy(src.join(f), dst.join(f)).unwrap();
+    }
+    for d in ["rgb", "depth"] {
+        std::os::unix::fs::symlink(src.join(d), dst.join(d)).unwrap();
+    }
+}
+
 /// The shared fr1/xyz trajectory pair (ground truth, RGB-D SLAM's estimate), as [`data`]
 /// finds them.
 pub fn xyz_pair() -> Option<(PathBuf, PathBuf)> {

@@ -73,6 +73,7 @@ fn run_once(
         backend,
         world: WorldPlan::Floor,
         map: None,
+        saved_map: None,
     };
     let mut slam = Pipeline::new(&seq.camera, config)?;
     let t0 = Instant::now();
