@@ -6,6 +6,20 @@ mod cli;
 
 use clap::Parser;
 
+/// The error and its causes, each cause once: library errors that name their cause in
+/// their own message are not followed by it again.
+fn report(e: &anyhow::Error) -> String {
+    let mut message = e.to_string();
+    for cause in e.chain().skip(1) {
+        let cause = cause.to_string();
+        if !message.contains(&cause) {
+            message.push_str(": ");
+            message.push_str(&cause);
+        }
+    }
+    message
+}
+
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     cli::init_logging(args.verbose, args.quiet);
@@ -24,7 +38,7 @@ fn main() -> std::process::ExitCode {
                 eprintln!("{limit}");
                 return std::process::ExitCode::from(1);
             }
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", report(&e));
             std::process::ExitCode::from(2)
         }
     }

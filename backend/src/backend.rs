@@ -57,6 +57,8 @@ pub struct KeyframeReport {
     pub culled_keyframes: usize,
     /// The local optimization.
     pub solve: Option<SolveReport>,
+    /// The loop closed at this keyframe, if any.
+    pub loop_closure: Option<crate::LoopReport>,
     /// Wall time of the whole step (s).
     pub time_s: f64,
 }
@@ -246,6 +248,7 @@ impl Backend {
             culled_points: 0,
             culled_keyframes: 0,
             solve: None,
+            loop_closure: None,
             time_s: 0.0,
         };
         // 2. Association: tracks first, then ORB matching against the local map.
@@ -279,6 +282,7 @@ impl Backend {
         };
         report.solve = solve_report;
         report.outliers = outliers;
+        report.loop_closure = self.close_loop(id)?;
         self.tracks = self.map.keyframe(id).map_or_else(HashMap::new, |kf| {
             kf.features
                 .iter()
@@ -309,7 +313,7 @@ impl Backend {
     /// Optimizes `free` keyframes (and their points in bundle-adjustment mode), removes the
     /// outlier observations and optimizes again if there were any. Returns the first
     /// solve's report and the number of outliers.
-    fn optimize(
+    pub(crate) fn optimize(
         &mut self,
         free: &[KeyframeId],
         iterations: usize,

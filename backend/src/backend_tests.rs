@@ -17,18 +17,18 @@ use stride_core::uncertainty::PrimeSenseModel;
 use stride_frontend::points::Measurement;
 use stride_frontend::{KeyframeFeature, KeyframeInfo, OdometryLink};
 
-fn camera() -> PinholeCamera {
+pub(crate) fn camera() -> PinholeCamera {
     PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480).unwrap()
 }
 
 /// The synthetic run: true poses, the odometry's drifting poses, and the keyframe inputs.
-struct Run {
-    truth: Vec<Isometry3<f64>>,
-    odometry: Vec<Isometry3<f64>>,
-    inputs: Vec<KeyframeInput>,
+pub(crate) struct Run {
+    pub(crate) truth: Vec<Isometry3<f64>>,
+    pub(crate) odometry: Vec<Isometry3<f64>>,
+    pub(crate) inputs: Vec<KeyframeInput>,
     /// Observations of points seen before under another track: what only ORB matching
     /// can associate.
-    reobservations: usize,
+    pub(crate) reobservations: usize,
 }
 
 fn descriptor(point: usize, rng: &mut SplitMix64) -> [u8; 32] {
@@ -47,7 +47,13 @@ fn descriptor(point: usize, rng: &mut SplitMix64) -> [u8; 32] {
 
 /// `n` keyframes sweeping right then back left in front of the points (so that the way
 /// back re-observes points whose tracks broke), odometry drifting by `drift` per step.
-fn synthetic_run(n: usize, drift: f64, seed: u64) -> Run {
+pub(crate) fn synthetic_run(n: usize, drift: f64, seed: u64) -> Run {
+    synthetic_run_textured(n, drift, seed, usize::MAX)
+}
+
+/// [`synthetic_run`] where points share `textures` descriptors (point `j` looks like
+/// point `j % textures`): a repetitive scene.
+pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: usize) -> Run {
     let cam = camera();
     let model = PrimeSenseModel::default();
     let mut rng = SplitMix64::new(seed);
@@ -112,7 +118,7 @@ fn synthetic_run(n: usize, drift: f64, seed: u64) -> Run {
                 track_id: track,
                 px: Point2::new(px.x as f32, px.y as f32),
                 measurement: Some(Measurement { p: q + noise, cov }),
-                descriptor: Some(descriptor(j, &mut rng)),
+                descriptor: Some(descriptor(j % textures, &mut rng)),
             });
         }
         // Tracks of points out of view end; a point seen again gets a new track.
@@ -142,7 +148,7 @@ fn synthetic_run(n: usize, drift: f64, seed: u64) -> Run {
 }
 
 /// RMS position error (m) of `est` against `truth` (same gauge: the first pose is shared).
-fn rms(est: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
+pub(crate) fn rms(est: &[Isometry3<f64>], truth: &[Isometry3<f64>]) -> f64 {
     let s: f64 = est
         .iter()
         .zip(truth)

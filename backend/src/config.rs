@@ -1,6 +1,7 @@
 //! Every parameter of the back end, with its default, unit and reason.
 
 use crate::error::BackendError;
+use crate::loop_closure::LoopParams;
 use crate::matching::MatchParams;
 use stride_core::uncertainty::PrimeSenseModel;
 
@@ -78,6 +79,8 @@ pub struct BackendConfig {
     pub nearby_angle_deg: f64,
     /// ORB map matching.
     pub matching: MatchParams,
+    /// Loop closure (bundle-adjustment mode only).
+    pub loop_closure: LoopParams,
     /// A keyframe is redundant (culled) when this fraction of its points is seen by at
     /// least `redundant_observers` other keyframes.
     pub redundant_fraction: f64,
@@ -117,6 +120,7 @@ impl Default for BackendConfig {
             nearby_radius_m: 1.0,
             nearby_angle_deg: 45.0,
             matching: MatchParams::default(),
+            loop_closure: LoopParams::default(),
             redundant_fraction: 0.9,
             redundant_observers: 3,
             point_grace_keyframes: 3,
@@ -212,6 +216,14 @@ impl BackendConfig {
                 "matching",
                 format!("{m:?}"),
                 "0 < min_radius_px <= max_radius_px, 0 < ratio <= 1",
+            );
+        }
+        let l = &self.loop_closure;
+        if !(l.search_radius_m > 0.0 && l.candidates >= 1 && l.min_inliers >= 6) {
+            return bad(
+                "loop_closure",
+                format!("{l:?}"),
+                "search_radius_m > 0, candidates >= 1, min_inliers >= 6",
             );
         }
         Ok(())

@@ -14,6 +14,8 @@
 //! * [`Backend`] ([`backend`]): per keyframe, associate (by track, then by ORB), add points,
 //!   optimize a local window, cull; at the end, optimize everything.
 //! * [`BackendThread`] ([`thread`]): the same in its own thread, over channels.
+//! * [`loop_closure`]: a keyframe that sees a place mapped long before is matched to it,
+//!   verified, and the loop's drift corrected (pose graph, then point fusion and BA).
 //! * [`SavedMap`] ([`map_file`]): a map saved to a file, read back and checked, for a later
 //!   run to localize in and extend.
 //!
@@ -29,6 +31,7 @@ mod backend_tests;
 pub mod config;
 mod culling;
 pub mod error;
+pub mod loop_closure;
 pub mod map;
 pub mod map_file;
 pub mod matching;
@@ -40,5 +43,6 @@ mod window;
 pub use backend::{Backend, KeyframeInput, KeyframeReport, KeyframeUpdate};
 pub use config::{BackendConfig, BackendMode};
 pub use error::BackendError;
+pub use loop_closure::{LoopParams, LoopReport};
 pub use map_file::{MapFileError, SavedMap};
 pub use thread::{BackendThread, Finished};

@@ -7,9 +7,7 @@ pub enum FrontendError {
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     /// The frame does not fit the camera.
-    #[error(
-        "frame {index}: image is {width}x{height} but the camera is {camera_width}x{camera_height}"
-    )]
+    #[error("image is {width}x{height} but the camera is {camera_width}x{camera_height}")]
     SizeMismatch {
         /// Frame index.
         index: usize,
@@ -34,7 +32,7 @@ pub enum FrontendError {
     },
     /// The first frame of a run in a saved map could not be placed in it.
     #[error(
-        "frame {index} ({t_s:.6} s): not localized in the saved map: its {features} ORB features with depth matched at most {most_matches} of one keyframe's (of {keyframes}), and no keyframe gave {min_inliers} RANSAC inliers; start where the map was made"
+        "not localized in the saved map: its {features} ORB features with depth matched at most {most_matches} of one keyframe's (of {keyframes}), and no keyframe gave {min_inliers} RANSAC inliers; start where the map was made"
     )]
     NotLocalized {
         /// Frame index.

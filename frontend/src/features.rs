@@ -222,3 +222,42 @@ pub fn ic_angle_deg(img: &GrayImage, x: f32, y: f32, radius: i32) -> f32 {
 pub fn hamming(a: &OrbDescriptor, b: &OrbDescriptor) -> u32 {
     a.iter().zip(b).map(|(x, y)| (x ^ y).count_ones()).sum()
 }
+
+/// Unguided matches `(query, reference)` between two sets of descriptors: each query's
+/// nearest reference by Hamming distance, kept when within `max_hamming`, below `ratio`
+/// times the second nearest (Lowe's test), and the only query claiming that reference (the
+/// closer wins, the first on a tie). In reference order.
+pub fn match_descriptors(
+    query: &[OrbDescriptor],
+    reference: &[OrbDescriptor],
+    max_hamming: u32,
+    ratio: f64,
+) -> Vec<(usize, usize)> {
+    let mut claimed: Vec<Option<(usize, u32)>> = vec![None; reference.len()];
+    for (qi, q) in query.iter().enumerate() {
+        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
+        for (ri, r) in reference.iter().enumerate() {
+            let d = hamming(q, r);
+            if d < best.0 {
+                second = best.0;
+                best = (d, ri);
+            } else if d < second {
+                second = d;
+            }
+        }
+        let (d, ri) = best;
+        if d > max_hamming || f64::from(d) >= ratio * f64::from(second) {
+            continue;
+        }
+        if let Some(slot) = claimed.get_mut(ri) {
+            if slot.is_none_or(|(_, od)| d < od) {
+                *slot = Some((qi, d));
+            }
+        }
+    }
+    claimed
+        .iter()
+        .enumerate()
+        .filter_map(|(ri, c)| c.map(|(qi, _)| (qi, ri)))
+        .collect()
+}

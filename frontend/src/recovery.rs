@@ -17,7 +17,7 @@
 //! on the few with the most matches. A run that starts in a saved map begins with it.
 
 use crate::error::FrontendError;
-use crate::features::{hamming, OrbDescriptor};
+use crate::features::{match_descriptors, OrbDescriptor};
 use crate::keyframe::{rotate_cov, Track, TrackPoint};
 use crate::klt::Pyramid;
 use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams};
@@ -226,36 +226,16 @@ fn orb_points(
     }
 }
 
-/// Accepted matches `(query, reference)` between two sets of ORB points.
+/// Accepted matches `(query, reference)` between two sets of ORB points
+/// ([`match_descriptors`] with [`MAX_HAMMING`] and [`RATIO`]).
 fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
-    let mut claimed: Vec<Option<(usize, u32)>> = vec![None; reference.len()];
-    for (qi, q) in query.iter().enumerate() {
-        let (mut best, mut second) = ((u32::MAX, usize::MAX), u32::MAX);
-        for (ri, r) in reference.iter().enumerate() {
-            let d = hamming(&q.descriptor, &r.descriptor);
-            if d < best.0 {
-                second = best.0;
-                best = (d, ri);
-            } else if d < second {
-                second = d;
-            }
-        }
-        let (d, ri) = best;
-        if d > MAX_HAMMING || f64::from(d) >= RATIO * f64::from(second) {
-            continue;
-        }
-        // One query per reference feature: the closer wins (the first on a tie).
-        if let Some(slot) = claimed.get_mut(ri) {
-            if slot.is_none_or(|(_, od)| d < od) {
-                *slot = Some((qi, d));
-            }
-        }
-    }
-    claimed
-        .iter()
-        .enumerate()
-        .filter_map(|(ri, c)| c.map(|(qi, _)| (qi, ri)))
-        .collect()
+    let descriptors = |p: &[OrbPoint]| p.iter().map(|o| o.descriptor).collect::<Vec<_>>();
+    match_descriptors(
+        &descriptors(query),
+        &descriptors(reference),
+        MAX_HAMMING,
+        RATIO,
+    )
 }
 
 /// A pose found by recovery.

@@ -198,8 +198,9 @@ pub fn run(a: RunArgs) -> Result<()> {
     ) {
         let _ = write!(
             line,
-            "\n{kf} keyframes, {} map points; local optimization median {:.2} ms",
+            "\n{kf} keyframes, {} map points, {} loops closed; local optimization median {:.2} ms",
             j["map_points"],
+            j["loop_closures"],
             j["ba_ms"]["median"].as_f64().unwrap_or(f64::NAN)
         );
     }

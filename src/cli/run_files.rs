@@ -328,6 +328,22 @@ fn report_json(
         m.insert("map_points".into(), json!(b.map_points));
         m.insert("map_keyframes".into(), json!(b.map_keyframes));
         m.insert("culled_keyframes".into(), json!(b.culled_keyframes));
+        // Each loop closed: the two keyframes, the inliers and how far it moved the new one.
+        let loops: Vec<Value> = b
+            .keyframes
+            .iter()
+            .filter_map(|k| {
+                let l = k.loop_closure.as_ref()?;
+                Some(
+                    json!({"keyframe": k.keyframe_id, "matched": l.matched, "matches": l.matches,
+                            "inliers": l.inliers, "correction_mm": l.correction_m * 1e3,
+                            "correction_deg": l.correction_rad.to_degrees(),
+                            "moved_keyframes": l.moved_keyframes, "fused": l.fused}),
+                )
+            })
+            .collect();
+        m.insert("loop_closures".into(), json!(loops.len()));
+        m.insert("loops".into(), Value::Array(loops));
         let sum = |f: fn(&stride_backend::KeyframeReport) -> usize| -> usize {
             b.keyframes.iter().map(f).sum()
         };
