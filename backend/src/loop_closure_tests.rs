@@ -106,6 +106,9 @@ fn a_repetitive_scene_closes_no_false_loop() {
         assert!(apart < 0.3, "false loop {k} -> {m}: {apart} m apart");
     }
     let (e_with, e_without) = (rms(&with, &run.truth), rms(&without, &run.truth));
-    eprintln!("repetitive scene: {} loops closed (each a true revisit)", closed.len());
+    eprintln!(
+        "repetitive scene: {} loops closed (each a true revisit)",
+        closed.len()
+    );
     assert!(e_with <= 1.2 * e_without, "{e_with} against {e_without}");
 }

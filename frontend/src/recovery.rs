@@ -32,7 +32,7 @@ use std::collections::VecDeque;
 use std::rc::Rc;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
-use stride_core::image::DepthImage;
+use stride_core::image::{DepthImage, GrayImage};
 use stride_core::rng::SplitMix64;
 
 /// Largest Hamming distance (of 256 bits) of an accepted match: ORB-SLAM's stricter bound.
@@ -366,16 +366,33 @@ impl VisualOdometry {
         &mut self,
         frame: &RgbdFrame,
         pyr: &Pyramid,
+        gray_img: &GrayImage,
     ) -> Result<Result<Recovered, NotLocalized>, FrontendError> {
         let (camera, config) = (&self.camera, &self.config);
-        let query = orb_points(
+        let still = ShutterMotion::default();
+        let mut query = orb_points(
             &mut self.recent.orb,
             &pyr.gray,
             &frame.depth_m,
             camera,
-            &ShutterMotion::default(),
+            &still,
             config,
         )?;
+        // The map's features are the tracking's corners with ORB descriptors at full
+        // resolution: the same corners of this frame match them best.
+        let corners = self.detector.detect(&pyr.gray, &[], config)?;
+        let pts: Vec<Point2f> = corners.iter().map(|c| c.px).collect();
+        let descriptors = self.detector.describe(&pyr.gray, gray_img, &pts)?;
+        for (px, d) in pts.iter().zip(descriptors) {
+            let m = measure(&frame.depth_m, camera, (px.x, px.y), &still, config);
+            if let (Some(descriptor), Some(p_camera)) = (d, m) {
+                query.push(OrbPoint {
+                    px: *px,
+                    descriptor,
+                    p_camera,
+                });
+            }
+        }
         let params = MotionParams {
             max_iterations: RANSAC_ITERATIONS,
             min_inliers: config.recovery_min_inliers,
