@@ -220,7 +220,14 @@ pub fn ic_angle_deg(img: &GrayImage, x: f32, y: f32, radius: i32) -> f32 {
 
 /// Hamming distance between two ORB descriptors.
 pub fn hamming(a: &OrbDescriptor, b: &OrbDescriptor) -> u32 {
-    a.iter().zip(b).map(|(x, y)| (x ^ y).count_ones()).sum()
+    // Four 64-bit words: four popcounts instead of 32.
+    a.chunks_exact(8)
+        .zip(b.chunks_exact(8))
+        .map(|(x, y)| {
+            let word = |c: &[u8]| u64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
+            (word(x) ^ word(y)).count_ones()
+        })
+        .sum()
 }
 
 /// Unguided matches `(query, reference)` between two sets of descriptors: each query's
@@ -260,4 +267,28 @@ pub fn match_descriptors(
         .enumerate()
         .filter_map(|(ri, c)| c.map(|(qi, _)| (qi, ri)))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stride_core::rng::SplitMix64;
+
+    #[test]
+    fn hamming_counts_every_differing_bit() {
+        let mut rng = SplitMix64::new(3);
+        let mut random = || {
+            let mut d = [0u8; 32];
+            for b in &mut d {
+                *b = (rng.next_u64() & 0xFF) as u8;
+            }
+            d
+        };
+        for _ in 0..100 {
+            let (a, b) = (random(), random());
+            let bytewise: u32 = a.iter().zip(&b).map(|(x, y)| (x ^ y).count_ones()).sum();
+            assert_eq!(hamming(&a, &b), bytewise);
+        }
+        assert_eq!(hamming(&[0; 32], &[0xFF; 32]), 256);
+    }
 }
