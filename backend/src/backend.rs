@@ -118,16 +118,15 @@ fn odometry_information(
     if usable {
         info
     } else {
-        let (t, r) = fallback;
-        Matrix6::from_diagonal(&Vector6::new(
-            1.0 / (t * t),
-            1.0 / (t * t),
-            1.0 / (t * t),
-            1.0 / (r * r),
-            1.0 / (r * r),
-            1.0 / (r * r),
-        ))
+        diagonal_information(fallback)
     }
+}
+
+/// The information of a pose error with independent standard deviations `(t, r)` (m, rad)
+/// on each translation and rotation component.
+pub(crate) fn diagonal_information((t, r): (f64, f64)) -> Matrix6<f64> {
+    let (it, ir) = (1.0 / (t * t), 1.0 / (r * r));
+    Matrix6::from_diagonal(&Vector6::new(it, it, it, ir, ir, ir))
 }
 
 impl Backend {

@@ -23,12 +23,12 @@
 //! Deterministic: candidates in a fixed order, RANSAC seeded by the two keyframes.
 
 use crate::ba::{solve, PoseEdge, PoseVar, Problem, SolverOptions};
-use crate::backend::Backend;
+use crate::backend::{diagonal_information, Backend};
 use crate::config::BackendMode;
 use crate::error::BackendError;
 use crate::map::{KeyframeId, PointId};
 use crate::se3::{is_finite, left_from_right};
-use nalgebra::{Isometry3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix6};
 use std::collections::BTreeMap;
 use stride_core::rng::{key, SplitMix64};
 use stride_frontend::features::match_descriptors;
@@ -89,19 +89,9 @@ pub struct LoopReport {
     pub fused: usize,
 }
 
-/// Information of a consecutive-keyframe link without odometry information: 1 cm and
-/// 1 degree standard deviations.
-fn default_link_information() -> Matrix6<f64> {
-    let (t, r) = (0.01_f64, 1.0_f64.to_radians());
-    Matrix6::from_diagonal(&Vector6::new(
-        1.0 / (t * t),
-        1.0 / (t * t),
-        1.0 / (t * t),
-        1.0 / (r * r),
-        1.0 / (r * r),
-        1.0 / (r * r),
-    ))
-}
+/// Standard deviations (m, rad) of a consecutive-keyframe link without odometry
+/// information: 1 cm and 1 degree.
+const DEFAULT_LINK_SIGMA: (f64, f64) = (0.01, 0.017_453_292_519_943_295);
 
 /// A verified loop: the old keyframe, the match count, the keyframe's pose by the old
 /// points, its information, and the inlier pairs `(feature, old point)`.
@@ -299,7 +289,10 @@ impl Backend {
             let information = ids
                 .get(i + 1)
                 .and_then(|&k| self.map.keyframe(k)?.odometry.as_ref())
-                .map_or_else(default_link_information, |e| e.information);
+                .map_or_else(
+                    || diagonal_information(DEFAULT_LINK_SIGMA),
+                    |e| e.information,
+                );
             problem.pose_edges.push(PoseEdge {
                 from: i,
                 to: i + 1,
