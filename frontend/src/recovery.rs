@@ -105,17 +105,6 @@ impl From<Anchor> for AnchorKeyframe {
     }
 }
 
-/// What a failed relocalization found.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct NotLocalized {
-    /// Keyframes of the map.
-    pub keyframes: usize,
-    /// ORB features of the frame with depth.
-    pub features: usize,
-    /// The most descriptor matches with one keyframe.
-    pub most_matches: usize,
-}
-
 /// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
 /// camera's frame (m, covariance m^2).
 #[derive(Debug, Clone, Copy)]
@@ -360,14 +349,15 @@ impl VisualOdometry {
 
     /// Looks for the current frame's pose in a saved map: its ORB features are matched
     /// against every anchor keyframe's, and RANSAC runs on the
-    /// [`RELOCALIZATION_CANDIDATES`] keyframes with the most matches. `Err` with what was
-    /// found when no keyframe gives `recovery_min_inliers` inliers.
+    /// [`RELOCALIZATION_CANDIDATES`] keyframes with the most matches.
+    /// [`FrontendError::NotLocalized`], saying what was found, when no keyframe gives
+    /// `recovery_min_inliers` inliers.
     pub(crate) fn relocalize(
         &mut self,
         frame: &RgbdFrame,
         pyr: &Pyramid,
         gray_img: &GrayImage,
-    ) -> Result<Result<Recovered, NotLocalized>, FrontendError> {
+    ) -> Result<Recovered, FrontendError> {
         let (camera, config) = (&self.camera, &self.config);
         let still = ShutterMotion::default();
         let mut query = orb_points(
@@ -417,14 +407,17 @@ impl VisualOdometry {
             );
             keep_best(&mut best, found);
         }
-        Ok(match best {
+        match best {
             Some((e, pairs)) => Ok(self.recovered(&query, e, &pairs)),
-            None => Err(NotLocalized {
+            None => Err(FrontendError::NotLocalized {
+                index: frame.index,
+                t_s: frame.t_s,
                 keyframes: self.anchors.len(),
                 features: query.len(),
                 most_matches,
+                min_inliers: self.config.recovery_min_inliers,
             }),
-        })
+        }
     }
 
     /// The pose and the new tracks (the inliers, carrying their matched world points) of

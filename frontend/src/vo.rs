@@ -178,16 +178,7 @@ impl VisualOdometry {
         let mut measured = Vec::new();
         if !self.anchors.is_empty() {
             let t = Instant::now();
-            let r = self.relocalize(frame, pyr, gray_img)?.map_err(|n| {
-                FrontendError::NotLocalized {
-                    index: frame.index,
-                    t_s: frame.t_s,
-                    keyframes: n.keyframes,
-                    features: n.features,
-                    most_matches: n.most_matches,
-                    min_inliers: self.config.recovery_min_inliers,
-                }
-            })?;
+            let r = self.relocalize(frame, pyr, gray_img)?;
             timing.recover_s = t.elapsed().as_secs_f64();
             status = TrackingStatus::Relocalized;
             world_from_cur = r.world_from_cur;

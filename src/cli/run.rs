@@ -188,8 +188,8 @@ pub fn run(a: RunArgs) -> Result<()> {
     let j = &summary.json;
     let f = |k: &str| j.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN);
     let mut line = format!(
-        "{} frames, {} tracked, {} recovered, {} lost, {} skipped; {} frames/s (back end: {}), odometry median {:.2} ms/frame (decoding excluded)",
-        j["frames"], j["frames_tracked"], j["frames_recovered"], j["frames_lost"], j["frames_skipped"], format_args!("{:.1}", f("fps")), j["backend"].as_str().unwrap_or("?"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
+        "{} frames, {} tracked, {} recovered, {} relocalized, {} lost, {} skipped; {} frames/s (back end: {}), odometry median {:.2} ms/frame (decoding excluded)",
+        j["frames"], j["frames_tracked"], j["frames_recovered"], j["frames_relocalized"], j["frames_lost"], j["frames_skipped"], format_args!("{:.1}", f("fps")), j["backend"].as_str().unwrap_or("?"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
     );
     // Map points and local optimizations exist only with a back end.
     if let (Some(kf), Some(_)) = (

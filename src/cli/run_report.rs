@@ -159,6 +159,10 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 g("frames_recovered"),
             ],
             vec![
+                "relocalized (in the loaded map)".into(),
+                g("frames_relocalized"),
+            ],
+            vec![
                 "lost (constant-velocity prediction)".into(),
                 g("frames_lost"),
             ],
@@ -183,6 +187,7 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 vec!["map points (final)".into(), g("map_points")],
                 vec!["keyframes in the map (final)".into(), g("map_keyframes")],
                 vec!["keyframes culled".into(), g("culled_keyframes")],
+                vec!["loops closed".into(), g("loop_closures")],
                 vec!["keyframe step median (ms)".into(), ms("median")],
                 vec!["keyframe step p95 (ms)".into(), ms("p95")],
                 vec!["final optimization (ms)".into(), ms("final")],
@@ -267,11 +272,13 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 )
                 .with_style(Style::Markers),
                 Series::line(
-                    "recovered",
+                    "recovered/relocalized",
                     PALETTE[3],
                     out.frames
                         .iter()
-                        .filter(|f| f.status == FrameStatus::Recovered)
+                        .filter(|f| {
+                            matches!(f.status, FrameStatus::Recovered | FrameStatus::Relocalized)
+                        })
                         .map(|f| (f.t_s - t0, f.inliers as f64))
                         .collect(),
                 )
