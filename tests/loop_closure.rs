@@ -9,19 +9,13 @@ mod common;
 
 use common::{num, report, run_ok};
 use std::path::{Path, PathBuf};
-use stride_core::camera::PinholeCamera;
-use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::synth::motion::{MotionConfig, PathKind};
 use stride_datasets::synth::{generate, SynthConfig};
 
 /// A quarter-VGA walk (fast to render) of `frames` frames at 15 frames/s along `path`.
 fn walk(dir: &Path, path: PathKind, frames: usize) -> PathBuf {
     let cfg = SynthConfig {
-        camera: CameraConfig {
-            camera: PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240).unwrap(),
-            depth_scale: 5000.0,
-            rolling_shutter_s: 0.0,
-        },
+        camera: common::quarter_vga(0.0),
         frames,
         fps: 15.0,
         blur: false,

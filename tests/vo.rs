@@ -213,11 +213,7 @@ fn a_missing_dataset_or_camera_is_a_clear_error() {
 
 fn synthetic(dir: &Path, gait: Gait, speed: f64, frames: usize) -> PathBuf {
     let cfg = SynthConfig {
-        camera: CameraConfig {
-            camera: PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240).unwrap(),
-            depth_scale: 5000.0,
-            rolling_shutter_s: 0.02,
-        },
+        camera: common::quarter_vga(0.02),
         frames,
         motion: MotionConfig {
             gait,

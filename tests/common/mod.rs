@@ -50,6 +50,17 @@ pub fn derived(src: &std::path::Path, dst: &std::path::Path, keep: impl Fn(usize
     }
 }
 
+/// A quarter-VGA camera (320x240, TUM fr1's intrinsics halved) for synthetic sequences
+/// that must render fast, with a colour readout of `rolling_shutter_s` (s).
+pub fn quarter_vga(rolling_shutter_s: f64) -> stride_datasets::camera_config::CameraConfig {
+    stride_datasets::camera_config::CameraConfig {
+        camera: stride_core::camera::PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240)
+            .unwrap(),
+        depth_scale: 5000.0,
+        rolling_shutter_s,
+    }
+}
+
 /// The shared fr1/xyz trajectory pair (ground truth, RGB-D SLAM's estimate), as [`data`]
 /// finds them.
 pub fn xyz_pair() -> Option<(PathBuf, PathBuf)> {
