@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::{num, report, run_ok};
+use common::num;
 use std::path::{Path, PathBuf};
 use stride_datasets::synth::motion::{MotionConfig, PathKind};
 use stride_datasets::synth::{generate, SynthConfig};
@@ -38,16 +38,7 @@ fn slam(seq: &Path, out: &Path, loops: bool) -> serde_json::Value {
         format!("map = false\n[backend.loop_closure]\nenabled = {loops}\n"),
     )
     .unwrap();
-    run_ok(&[
-        "run",
-        "--dataset",
-        seq.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--config",
-        config.to_str().unwrap(),
-    ]);
-    report(out)
+    common::run_report("run", seq, out, &["--config", config.to_str().unwrap()])
 }
 
 /// Every loop's correction of the new keyframe (m).
