@@ -49,17 +49,32 @@ fn a_second_run_localizes_in_a_saved_map_and_extends_it() {
     let one = run(&first, "one", &["--save-map", map_arg]);
     assert_eq!(one["save_map"], map_arg, "{one}");
     assert!(map.is_file());
-    let two = run(&second, "two", &["--load-map", map_arg]);
+    let again = tmp.path().join("teddy_extended.map.json");
+    let again_arg = again.to_str().unwrap();
+    let two = run(
+        &second,
+        "two",
+        &["--load-map", map_arg, "--save-map", again_arg],
+    );
     assert_eq!(two["load_map"], map_arg, "{two}");
     assert_eq!(two["relocalizations"], 1, "{two}");
     assert_eq!(two["frames_by_status"]["relocalized"], 1, "{two}");
     assert_eq!(two["frames_lost"], 0, "{two}");
     assert_eq!(two["world_frame"]["source"], "saved map", "{two}");
-    // The map grew: the saved map's points and the second run's new ones.
+    // The map grew: the saved map's points and the second run's new ones; saved again, it
+    // keeps its keyframes and where its world came from.
     assert!(
         two["map_points"].as_u64().unwrap() > one["map_points"].as_u64().unwrap(),
         "{one}\n{two}"
     );
+    let json = |p: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
+    };
+    let (saved, extended) = (json(&map), json(&again));
+    let count = |v: &serde_json::Value| v["keyframes"].as_array().unwrap().len();
+    assert!(count(&extended) > count(&saved));
+    assert_eq!(extended["world"], saved["world"]);
+    assert_eq!(extended["world_from_map"], saved["world_from_map"]);
 
     // The second run's poses are in the first run's world: one alignment fits both runs
     // about as well as it fits the single run over all 200 frames. Measured: 4.97 mm

@@ -254,6 +254,8 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
         anyhow::bail!("--save-map needs a back end (the odometry alone keeps no map)");
     }
     let mut pipeline = config.pipeline(a.world_plan(&seq)?);
+    // Where the world came from: a map saved again keeps its original description.
+    let mut world_origin = None;
     if let Some(path) = &a.load_map {
         let t = Instant::now();
         let saved = SavedMap::load(path, &seq.camera.camera)?;
@@ -265,6 +267,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
             t.elapsed().as_secs_f64() * 1e3,
             saved.world
         );
+        world_origin = Some(saved.world.clone());
         pipeline.saved_map = Some(saved);
     }
     let total = a.max_frames.map_or(seq.len(), |m| m.min(seq.len()));
@@ -281,7 +284,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
             camera: seq.camera.camera,
             map,
             world_from_map: world.world_from_slam,
-            world: world.describe(),
+            world: world_origin.unwrap_or_else(|| world.describe()),
             gravity_aligned: world.is_gravity_aligned(),
         };
         saved.save(path)?;
