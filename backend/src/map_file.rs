@@ -33,13 +33,12 @@
 //! naming the file and what is wrong.
 
 use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
-use nalgebra::{
-    Isometry3, Matrix3, Matrix6, Point2, Point3, Quaternion, Translation3, UnitQuaternion,
-};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use stride_core::camera::PinholeCamera;
+use stride_core::pose::{pose_from_translation_quaternion, pose_to_translation_quaternion};
 use stride_frontend::features::OrbDescriptor;
 use stride_frontend::points::Measurement;
 use stride_frontend::recovery::{Anchor, AnchorPoint};
@@ -108,33 +107,19 @@ struct PoseDto {
 
 impl PoseDto {
     fn from_iso(p: &Isometry3<f64>) -> Self {
-        let t = p.translation.vector;
-        let q = p.rotation.quaternion().coords;
+        let (translation_m, rotation_xyzw) = pose_to_translation_quaternion(p);
         Self {
-            translation_m: [t.x, t.y, t.z],
-            rotation_xyzw: [q.x, q.y, q.z, q.w],
+            translation_m,
+            rotation_xyzw,
         }
     }
 
+    /// The pose, when its numbers are finite and its quaternion of unit length (within
+    /// 1e-6: a file's rotations are written normalized).
     fn to_iso(self) -> Option<Isometry3<f64>> {
-        let [x, y, z, w] = self.rotation_xyzw;
-        let q = Quaternion::new(w, x, y, z);
-        let all = self.translation_m.iter().chain(&self.rotation_xyzw);
-        if !all.into_iter().all(|v| v.is_finite()) || (q.norm() - 1.0).abs() > 1e-6 {
-            return None;
-        }
-        let [tx, ty, tz] = self.translation_m;
-        // A unit quaternion as written is kept bit for bit; renormalizing it would change
-        // its last digits.
-        let rotation = if (q.norm() - 1.0).abs() < 1e-12 {
-            UnitQuaternion::new_unchecked(q)
-        } else {
-            UnitQuaternion::from_quaternion(q)
-        };
-        Some(Isometry3::from_parts(
-            Translation3::new(tx, ty, tz),
-            rotation,
-        ))
+        let (pose, norm) =
+            pose_from_translation_quaternion(self.translation_m, self.rotation_xyzw).ok()?;
+        ((norm - 1.0).abs() <= 1e-6).then_some(pose)
     }
 }
 

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::map::Feature;
+use nalgebra::{Translation3, UnitQuaternion};
 use serde_json::Value;
 
 fn camera() -> PinholeCamera {
