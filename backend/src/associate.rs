@@ -86,31 +86,13 @@ impl Backend {
                     .map(|(k, _)| k),
             );
         }
-        let Some(kf) = self.map.keyframe(id) else {
-            return set;
-        };
-        let (t, fwd) = (
-            kf.world_from_camera.translation.vector,
-            kf.world_from_camera.rotation * nalgebra::Vector3::z(),
-        );
-        let cos_max = self.config.nearby_angle_deg.to_radians().cos();
-        let mut near: Vec<(f64, KeyframeId)> = self
-            .map
-            .keyframes()
-            .values()
-            .filter(|k| k.id != id)
-            .filter_map(|k| {
-                let d = (k.world_from_camera.translation.vector - t).norm();
-                let f = k.world_from_camera.rotation * nalgebra::Vector3::z();
-                (d <= self.config.nearby_radius_m && f.dot(&fwd) >= cos_max).then_some((d, k.id))
-            })
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        set.extend(
-            near.into_iter()
-                .take(self.config.local_map_keyframes)
-                .map(|(_, k)| k),
-        );
+        set.extend(self.map.nearby(
+            id,
+            self.config.nearby_radius_m,
+            self.config.nearby_angle_deg,
+            self.config.local_map_keyframes,
+            |_| true,
+        ));
         set
     }
 

@@ -165,21 +165,13 @@ impl Backend {
             kf.covisibility.get(&k).copied().unwrap_or(0) >= params.connected_points
         };
         let old = |k: KeyframeId| k + params.min_age_keyframes <= id && !tied(k);
-        let here = kf.world_from_camera.translation.vector;
-        let forward = |p: &Isometry3<f64>| p.rotation * nalgebra::Vector3::z();
-        let cos_max = self.config.nearby_angle_deg.to_radians().cos();
-        let mut near: Vec<(f64, KeyframeId)> = self
-            .map
-            .keyframes()
-            .values()
-            .filter(|k| old(k.id))
-            .filter(|k| {
-                forward(&k.world_from_camera).dot(&forward(&kf.world_from_camera)) >= cos_max
-            })
-            .map(|k| ((k.world_from_camera.translation.vector - here).norm(), k.id))
-            .filter(|(d, _)| *d <= params.search_radius_m)
-            .collect();
-        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let near = self.map.nearby(
+            id,
+            params.search_radius_m,
+            self.config.nearby_angle_deg,
+            params.candidates,
+            |k| old(k.id),
+        );
         // The keyframe's features that can be matched: descriptor and measurement.
         let query: Vec<(usize, [u8; 32], Measurement)> = kf
             .features
@@ -190,7 +182,7 @@ impl Backend {
         let query_desc: Vec<[u8; 32]> = query.iter().map(|q| q.1).collect();
         let m = &self.config.matching;
         let mut best: Option<(KeyframeId, Vec<(usize, PointId)>)> = None;
-        for &(_, c) in near.iter().take(params.candidates) {
+        for &c in &near {
             let Some(ckf) = self.map.keyframe(c) else {
                 continue;
             };

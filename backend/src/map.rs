@@ -174,6 +174,36 @@ impl Map {
         self.points.get(&id)
     }
 
+    /// Keyframes (other than `id`) passing `keep` within `radius_m` of keyframe `id`'s
+    /// position and looking within `max_angle_deg` of its optical axis, nearest first (ties
+    /// by identifier), at most `take`.
+    pub fn nearby(
+        &self,
+        id: KeyframeId,
+        radius_m: f64,
+        max_angle_deg: f64,
+        take: usize,
+        keep: impl Fn(&Keyframe) -> bool,
+    ) -> Vec<KeyframeId> {
+        let Some(kf) = self.keyframe(id) else {
+            return Vec::new();
+        };
+        let forward = |k: &Keyframe| k.world_from_camera.rotation * nalgebra::Vector3::z();
+        let (t, fwd) = (kf.world_from_camera.translation.vector, forward(kf));
+        let cos_max = max_angle_deg.to_radians().cos();
+        let mut near: Vec<(f64, KeyframeId)> = self
+            .keyframes
+            .values()
+            .filter(|k| k.id != id && keep(k))
+            .filter_map(|k| {
+                let d = (k.world_from_camera.translation.vector - t).norm();
+                (d <= radius_m && forward(k).dot(&fwd) >= cos_max).then_some((d, k.id))
+            })
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        near.into_iter().take(take).map(|(_, k)| k).collect()
+    }
+
     /// Culled keyframes and where their poses are kept.
     pub fn culled(&self) -> &BTreeMap<KeyframeId, Culled> {
         &self.culled
