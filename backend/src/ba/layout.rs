@@ -5,7 +5,7 @@
 use super::problem::Problem;
 use super::reduced::BlockPattern;
 use crate::se3::{is_finite, point_is_finite, retract};
-use nalgebra::{Isometry3, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3, Vector6};
 
 /// The estimate, apart from the edges: every pose (`world_from_camera`) and point
 /// (`p_world`).
@@ -56,8 +56,6 @@ pub(crate) struct Layout {
     pub(crate) cam_of_pose: Vec<Option<u32>>,
     /// Point-edge indices ordered by point.
     pub(crate) edge_order: Vec<usize>,
-    /// For each position in `edge_order`, its point.
-    pub(crate) point_of_pos: Vec<usize>,
     /// For each point, its range in `edge_order`.
     pub(crate) point_ranges: Vec<std::ops::Range<usize>>,
     /// For each free camera, positions in `edge_order` of its edges, and their points.
@@ -66,6 +64,58 @@ pub(crate) struct Layout {
     /// square of each point's observation count), for sums done in parallel and then
     /// added in a fixed order.
     pub(crate) partitions: Vec<std::ops::Range<usize>>,
+    /// For each partition, its range of positions in `edge_order` (consecutive, covering
+    /// them all).
+    pub(crate) partition_obs: Vec<std::ops::Range<usize>>,
+}
+
+/// The camera index of an edge whose pose is fixed.
+pub(crate) const NO_CAM: u32 = u32::MAX;
+
+/// `s` cut into the consecutive `ranges` (which must start at 0 and follow each other; a
+/// range past the end gets what is left).
+pub(crate) fn split_by_ranges<'a, T>(
+    mut s: &'a mut [T],
+    ranges: &[std::ops::Range<usize>],
+) -> Vec<&'a mut [T]> {
+    let mut out = Vec::with_capacity(ranges.len());
+    for r in ranges {
+        let (head, tail) = s.split_at_mut(r.len().min(s.len()));
+        out.push(head);
+        s = tail;
+    }
+    out
+}
+
+/// Every pose's `camera_from_world` as a rotation matrix and the camera's position: the
+/// per-edge transform is then a matrix-vector product instead of a quaternion rotation.
+pub(crate) struct Frames(Vec<(Matrix3<f64>, Vector3<f64>)>);
+
+impl Frames {
+    pub(crate) fn of(x: &Vars) -> Self {
+        Self(
+            x.poses
+                .iter()
+                .map(|p| {
+                    (
+                        p.rotation.to_rotation_matrix().into_inner().transpose(),
+                        p.translation.vector,
+                    )
+                })
+                .collect(),
+        )
+    }
+
+    /// `p_world` in the camera of pose `pose` (m), and that camera's `R^T` (the point
+    /// Jacobian of a pose-point edge).
+    pub(crate) fn to_camera(
+        &self,
+        pose: usize,
+        p_world: &Point3<f64>,
+    ) -> Option<(Vector3<f64>, &Matrix3<f64>)> {
+        let (rt, t) = self.0.get(pose)?;
+        Some((rt * (p_world.coords - t), rt))
+    }
 }
 
 /// Parallel sums over points use this many partitions, whatever the thread count, so that
@@ -107,31 +157,20 @@ impl Layout {
             })
             .collect();
         edge_order.sort_by_key(|&i| p.point_edges.get(i).map(|e| (e.point, e.pose)));
-        let mut point_ranges = vec![0..0; p.points.len()];
-        let mut start = 0;
-        while start < edge_order.len() {
-            let pt = edge_order
-                .get(start)
-                .and_then(|&i| p.point_edges.get(i))
-                .map_or(0, |e| e.point);
-            let mut end = start;
-            while end < edge_order.len()
-                && edge_order
-                    .get(end)
-                    .and_then(|&i| p.point_edges.get(i))
-                    .is_some_and(|e| e.point == pt)
-            {
-                end += 1;
+        // Every point's range, empty ones included, starts where the previous one ends, so
+        // that a run of points always maps to a run of positions.
+        let mut counts = vec![0usize; p.points.len()];
+        for &i in &edge_order {
+            if let Some(c) = p.point_edges.get(i).and_then(|e| counts.get_mut(e.point)) {
+                *c += 1;
             }
-            if let Some(r) = point_ranges.get_mut(pt) {
-                *r = start..end;
-            }
-            start = end;
         }
-        let point_of_pos = edge_order
-            .iter()
-            .map(|&i| p.point_edges.get(i).map_or(0, |e| e.point))
-            .collect();
+        let mut point_ranges = Vec::with_capacity(counts.len());
+        let mut start = 0;
+        for c in counts {
+            point_ranges.push(start..start + c);
+            start += c;
+        }
         let mut obs_of_cam = vec![Vec::new(); n_cams as usize];
         for (pos, &i) in edge_order.iter().enumerate() {
             if let Some(e) = p.point_edges.get(i) {
@@ -144,11 +183,23 @@ impl Layout {
         }
         let weights: Vec<usize> = point_ranges.iter().map(|r| r.len() * r.len() + 1).collect();
         let partitions = balanced(&weights, PARTITIONS);
+        let partition_obs = partitions
+            .iter()
+            .map(|r| {
+                let start = point_ranges.get(r.start).map_or(0, |x| x.start);
+                let end = r
+                    .end
+                    .checked_sub(1)
+                    .and_then(|last| point_ranges.get(last))
+                    .map_or(start, |x| x.end.max(start));
+                start..end
+            })
+            .collect();
         Self {
             partitions,
+            partition_obs,
             cam_of_pose,
             edge_order,
-            point_of_pos,
             point_ranges,
             obs_of_cam,
         }

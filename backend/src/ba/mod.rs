@@ -3,6 +3,7 @@
 //! complement ([`solver`]).
 
 mod layout;
+mod linearize;
 pub mod problem;
 pub mod reduced;
 pub mod solver;

@@ -20,7 +20,14 @@ use nalgebra::{Matrix6, Vector6};
 pub struct BlockPattern {
     rows_of_col: Vec<Vec<u32>>,
     offsets: Vec<usize>,
+    /// `slot + 1` of block `(a, b)` at `a * n + b` (0: absent), for up to
+    /// [`DENSE_SLOTS_MAX`] cameras; empty above, where [`Self::slot`] searches the column.
+    dense: Vec<u32>,
 }
+
+/// Most cameras for which [`BlockPattern`] keeps a dense table of slots (4 MB at most): the
+/// Schur complement looks a slot up for every pair of observations of every point.
+const DENSE_SLOTS_MAX: usize = 1024;
 
 impl BlockPattern {
     /// The pattern of `n` cameras with the given coupled pairs (in either order; duplicates
@@ -46,9 +53,22 @@ impl BlockPattern {
             acc += col.len();
         }
         offsets.push(acc);
+        let mut dense = Vec::new();
+        if n <= DENSE_SLOTS_MAX {
+            dense = vec![0u32; n * n];
+            for (b, col) in rows_of_col.iter().enumerate() {
+                for (i, &a) in col.iter().enumerate() {
+                    let slot = offsets.get(b).map_or(0, |o| o + i);
+                    if let Some(d) = dense.get_mut(a as usize * n + b) {
+                        *d = slot as u32 + 1;
+                    }
+                }
+            }
+        }
         Self {
             rows_of_col,
             offsets,
+            dense,
         }
     }
 
@@ -64,6 +84,14 @@ impl BlockPattern {
 
     /// The storage slot of block `(a, b)`, `a >= b`, if present.
     pub fn slot(&self, a: usize, b: usize) -> Option<usize> {
+        let n = self.rows_of_col.len();
+        if !self.dense.is_empty() {
+            if a >= n || b >= n {
+                return None;
+            }
+            let d = *self.dense.get(a * n + b)?;
+            return (d > 0).then(|| d as usize - 1);
+        }
         let col = self.rows_of_col.get(b)?;
         let pos = col.binary_search(&(a as u32)).ok()?;
         Some(self.offsets.get(b)? + pos)
@@ -244,6 +272,24 @@ mod tests {
         // A second solve with the same structure reuses the symbolic factorisation.
         let x2 = sys.solve(&blocks, &rhs).unwrap();
         assert_eq!(x, x2);
+    }
+
+    #[test]
+    fn slots_agree_with_the_columns_with_and_without_the_dense_table() {
+        for n in [7, DENSE_SLOTS_MAX + 3] {
+            let p = BlockPattern::new(n, (0..n).map(|i| (i, (i * 7 + 3) % n)));
+            let mut found = 0;
+            for b in 0..n {
+                let (rows, first) = p.column(b);
+                for a in b..n {
+                    let expect = rows.iter().position(|&r| r as usize == a).map(|i| first + i);
+                    assert_eq!(p.slot(a, b), expect, "n {n}, block ({a}, {b})");
+                    found += usize::from(expect.is_some());
+                }
+            }
+            assert_eq!(found, p.blocks());
+            assert_eq!(p.slot(n, 0), None);
+        }
     }
 
     #[test]
