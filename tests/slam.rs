@@ -42,6 +42,12 @@ fn teddy_bundle_adjustment_beats_the_odometry_alone() {
     assert!(ba["map_points"].as_u64().unwrap() > 200, "{ba}");
     assert_eq!(ba["ba_ms"]["count"].as_u64(), Some(keyframes));
     assert!(num(&ba["ba_ms"], "p95") >= num(&ba["ba_ms"], "median"));
+    // The local optimization is part of the keyframe step, and it ran.
+    let optimize = num(&ba["optimize_ms"], "median");
+    assert!(
+        optimize > 0.0 && optimize <= num(&ba["ba_ms"], "median"),
+        "{ba}"
+    );
     let assoc = &ba["associations"];
     assert!(assoc["by_track"].as_u64().unwrap() > 1000, "{assoc}");
     assert!(assoc["by_orb"].as_u64().unwrap() > 0, "{assoc}");

@@ -59,7 +59,10 @@ pub struct KeyframeReport {
     pub solve: Option<SolveReport>,
     /// The loop closed at this keyframe, if any.
     pub loop_closure: Option<crate::LoopReport>,
-    /// Wall time of the whole step (s).
+    /// Wall time of the local optimization: both solves (the second after removing
+    /// outliers) and the outlier test (s); 0 when none ran.
+    pub optimize_s: f64,
+    /// Wall time of the whole step: association, optimization, loop closure, culling (s).
     pub time_s: f64,
 }
 
@@ -248,6 +251,7 @@ impl Backend {
             culled_keyframes: 0,
             solve: None,
             loop_closure: None,
+            optimize_s: 0.0,
             time_s: 0.0,
         };
         // 2. Association: tracks first, then ORB matching against the local map.
@@ -274,11 +278,13 @@ impl Backend {
         // 5. Optimize the local window, drop outliers, cull.
         let window = local_window(&self.map, id, &self.config);
         let every = self.config.optimize_every_keyframes.max(1) as u64;
+        let optimize_start = Instant::now();
         let (solve_report, outliers) = if id % every == 0 {
             self.optimize(&window, self.config.local_iterations)?
         } else {
             (None, 0)
         };
+        report.optimize_s = optimize_start.elapsed().as_secs_f64();
         report.solve = solve_report;
         report.outliers = outliers;
         report.loop_closure = self.close_loop(id)?;

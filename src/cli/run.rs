@@ -198,10 +198,11 @@ pub fn run(a: RunArgs) -> Result<()> {
     ) {
         let _ = write!(
             line,
-            "\n{kf} keyframes, {} map points, {} loops closed; local optimization median {:.2} ms",
+            "\n{kf} keyframes, {} map points, {} loops closed; back end per keyframe median {:.2} ms, of it local optimization {:.2} ms",
             j["map_points"],
             j["loop_closures"],
-            j["ba_ms"]["median"].as_f64().unwrap_or(f64::NAN)
+            j["ba_ms"]["median"].as_f64().unwrap_or(f64::NAN),
+            j["optimize_ms"]["median"].as_f64().unwrap_or(f64::NAN)
         );
     }
     if let (Some(at), Some(rp)) = (&summary.ate, &summary.rpe) {

@@ -325,6 +325,11 @@ fn report_json(
             json!({"median": med, "p95": p95, "count": b.keyframes.len(),
                    "final": b.final_solve.as_ref().map(|s| s.time_s * 1e3)}),
         );
+        let (med, p95) = median_p95(b.keyframes.iter().map(|k| k.optimize_s * 1e3));
+        m.insert(
+            "optimize_ms".into(),
+            json!({"median": med, "p95": p95, "count": b.keyframes.len()}),
+        );
         m.insert("map_points".into(), json!(b.map_points));
         m.insert("map_keyframes".into(), json!(b.map_keyframes));
         m.insert("culled_keyframes".into(), json!(b.culled_keyframes));

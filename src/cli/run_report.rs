@@ -190,6 +190,14 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 vec!["loops closed".into(), g("loop_closures")],
                 vec!["keyframe step median (ms)".into(), ms("median")],
                 vec!["keyframe step p95 (ms)".into(), ms("p95")],
+                vec![
+                    "of it local optimization, median / p95 (ms)".into(),
+                    format!(
+                        "{:.2} / {:.2}",
+                        j["optimize_ms"]["median"].as_f64().unwrap_or(f64::NAN),
+                        j["optimize_ms"]["p95"].as_f64().unwrap_or(f64::NAN)
+                    ),
+                ],
                 vec!["final optimization (ms)".into(), ms("final")],
                 vec![
                     "associations by track / by ORB / new points".into(),

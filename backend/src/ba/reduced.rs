@@ -282,7 +282,10 @@ mod tests {
             for b in 0..n {
                 let (rows, first) = p.column(b);
                 for a in b..n {
-                    let expect = rows.iter().position(|&r| r as usize == a).map(|i| first + i);
+                    let expect = rows
+                        .iter()
+                        .position(|&r| r as usize == a)
+                        .map(|i| first + i);
                     assert_eq!(p.slot(a, b), expect, "n {n}, block ({a}, {b})");
                     found += usize::from(expect.is_some());
                 }
