@@ -195,6 +195,7 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
         "update_ms": {"median": upd_med, "p95": upd_p95},
         "rebuild_ms": {"median": reb_med, "p95": reb_p95},
         "wall_s": m.wall_s,
+        "queue_wait_s": s.queue_wait_s,
         "points_used": s.points_used,
         "rejected": serde_json::to_value(s.rejected).unwrap_or(Value::Null),
         "floor": floor.and_then(|f| serde_json::to_value(f).ok()),

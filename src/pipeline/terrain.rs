@@ -130,6 +130,9 @@ pub struct TerrainStats {
     pub points_used: usize,
     /// Measurements dropped, by reason (counted the same way).
     pub rejected: Rejections,
+    /// Time the frame path waited for room in the map thread's queue (s): 0 when the map
+    /// kept up.
+    pub queue_wait_s: f64,
 }
 
 /// A view: a frame's decimated depth and where it is.

@@ -1,13 +1,18 @@
-//! The elevation map in a thread of its own, so that integrations and rebuilds never hold
-//! up the frame path. Requests are handled in the order they are sent, so the map is the
-//! same on every run whatever the threads' timing; a query waits for the requests before
-//! it. A thread that stops unexpectedly is reported by the next call, never hidden.
+//! The elevation map in a thread of its own, so that integrations and rebuilds do not hold
+//! up the frame path while the map keeps up. Requests are handled in the order they are
+//! sent, so the map is the same on every run whatever the threads' timing; a query waits
+//! for the requests before it. The queue holds at most [`QUEUE_REQUESTS`] requests (a view
+//! carries a full depth image, 1.2 MB at 640x480): when the map falls behind, the frame
+//! path waits for room instead of memory growing with the run (a 10,000-frame run once
+//! reached 4 GB that way), and the wait is counted in [`TerrainStats::queue_wait_s`]. A
+//! thread that stops unexpectedly is reported by the next call, never hidden.
 
 use super::terrain::{Terrain, TerrainStats};
 use super::PipelineError;
 use nalgebra::Isometry3;
-use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::mpsc::{channel, sync_channel, Receiver, Sender, SyncSender};
 use std::thread::JoinHandle;
+use std::time::Instant;
 use stride_core::image::DepthImage;
 use stride_core::panic_message;
 use stride_mapping::MapLayers;
@@ -30,9 +35,14 @@ enum Request {
     Layers(Sender<Result<MapLayers, PipelineError>>),
 }
 
+/// Most requests waiting for the map thread.
+pub const QUEUE_REQUESTS: usize = 8;
+
 /// The map thread.
 pub struct TerrainThread {
-    requests: Option<Sender<Request>>,
+    requests: Option<SyncSender<Request>>,
+    /// Time the caller waited for room in the queue (s).
+    queue_wait_s: f64,
     /// Errors of updates (the first one stops the thread).
     errors: Receiver<PipelineError>,
     handle: Option<JoinHandle<Terrain>>,
@@ -45,7 +55,7 @@ impl TerrainThread {
     /// Starts the thread with `terrain`.
     pub fn spawn(mut terrain: Terrain) -> Result<Self, PipelineError> {
         let every_frames = terrain.config().every_frames;
-        let (req_tx, req_rx) = channel::<Request>();
+        let (req_tx, req_rx) = sync_channel::<Request>(QUEUE_REQUESTS);
         let (err_tx, err_rx) = channel();
         let handle = std::thread::Builder::new()
             .name("stride-map".into())
@@ -85,6 +95,7 @@ impl TerrainThread {
             .map_err(|e| PipelineError::MapThread(e.to_string()))?;
         Ok(Self {
             requests: Some(req_tx),
+            queue_wait_s: 0.0,
             errors: err_rx,
             handle: Some(handle),
             world_sent: false,
@@ -98,7 +109,9 @@ impl TerrainThread {
         if let Ok(e) = self.errors.try_recv() {
             return Err(e);
         }
+        let start = Instant::now();
         let sent = self.requests.as_ref().is_some_and(|tx| tx.send(r).is_ok());
+        self.queue_wait_s += start.elapsed().as_secs_f64();
         if sent {
             Ok(())
         } else {
@@ -190,6 +203,8 @@ impl TerrainThread {
         if let Ok(e) = self.errors.try_recv() {
             return Err(e);
         }
-        terrain.finish(|frame| final_poses.get(frame).copied())
+        let (layers, mut stats) = terrain.finish(|frame| final_poses.get(frame).copied())?;
+        stats.queue_wait_s = self.queue_wait_s;
+        Ok((layers, stats))
     }
 }
