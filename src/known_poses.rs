@@ -9,7 +9,9 @@ use stride_core::trajectory::Trajectory;
 use stride_datasets::stream::StreamError;
 use stride_datasets::tum::TumSequence;
 use stride_mapping::input::{Rejections, SensorFrame};
-use stride_mapping::metrics::{compare, floor_fit, phantoms, FloorFit, MapScore, PhantomScore};
+use stride_mapping::metrics::{
+    compare, compare_over_seen, floor_fit, phantoms, FloorFit, MapScore, PhantomScore, SeenScore,
+};
 use stride_mapping::post::MedianStats;
 use stride_mapping::{ElevationMapper, MapLayers};
 
@@ -33,11 +35,20 @@ pub struct MapperRun {
     pub score: Option<MapScore>,
     /// Phantom obstacles over flat ground truth.
     pub phantoms: Option<PhantomScore>,
+    /// Scored over the cells seen (when a naive reference map ran beside it).
+    pub seen: Option<SeenScore>,
     /// The floor's plane fit.
     pub floor: Option<FloorFit>,
     /// Bytes the mapper held at the end ([`ElevationMapper::memory_bytes`]).
     pub memory_bytes: usize,
 }
+
+/// Ground truth spanning more than this height (m) within [`STEP_RADIUS_M`] of a cell puts
+/// the cell near a step.
+pub const STEP_M: f64 = 0.02;
+
+/// See [`STEP_M`] (m).
+pub const STEP_RADIUS_M: f64 = 0.02;
 
 /// Cells within this height of the floor plane (m) count as floor in the flatness fit.
 pub const FLOOR_BAND_M: f64 = 0.10;
@@ -122,9 +133,19 @@ pub fn map_sequence(
             median,
             score,
             phantoms,
+            seen: None,
             floor,
             memory_bytes: m.memory_bytes(),
         });
+    }
+    // With the cells seen among the maps, every map is also scored over them.
+    if let (Some(g), Some(i)) = (gt, runs.iter().position(|r| r.name == "seen")) {
+        let seen = runs.get(i).map(|r| r.layers.elevation.clone());
+        for r in &mut runs {
+            r.seen = seen
+                .as_ref()
+                .and_then(|s| compare_over_seen(&r.layers.elevation, s, g, STEP_M, STEP_RADIUS_M));
+        }
     }
     Ok((runs, counts))
 }

@@ -62,6 +62,21 @@ fn stack_map_beats_the_baseline_and_leaves_no_phantoms() {
     }
     assert!(tmp.path().join("both/report.html").is_file());
 
+    // Beside the naive per-cell median and the cells seen (measurements on the true
+    // surface), every map is scored over the cells seen. Measured: stack coverage 0.90,
+    // RMSE away from steps 1.4 mm against the baseline's 2.3 mm.
+    let all = map(&seq, &tmp.path().join("all"), &["--mapper", "all"]);
+    let over = |m: &str, k: &str| num(&all[m]["over_seen_cells"], k);
+    assert_eq!(over("seen", "coverage"), 1.0, "{all}");
+    assert_eq!(over("naive", "coverage"), 1.0, "{all}");
+    assert!(over("seen", "cells_seen") > 10000.0, "{all}");
+    assert!(over("stack", "coverage") > 0.85, "{all}");
+    assert!(
+        over("stack", "rmse_away_m") < over("fankhauser", "rmse_away_m"),
+        "{all}"
+    );
+    assert!(over("stack", "rmse_near_steps_m") > over("stack", "rmse_away_m"));
+
     // Without the depth-edge filter, the visibility and see-through checks and the median
     // filter, the flying pixels do make phantoms in our map too: those stages remove them.
     let bare = map(

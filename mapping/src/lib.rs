@@ -28,6 +28,7 @@ pub mod fankhauser;
 mod fuse;
 pub mod input;
 pub mod metrics;
+pub mod naive;
 mod polar;
 pub mod post;
 pub mod stack;

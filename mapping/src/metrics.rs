@@ -243,10 +243,169 @@ pub fn floor_fit(map: &Grid<f32>, band_m: f64) -> Option<FloorFit> {
     })
 }
 
+/// A map scored over the cells seen: the cells a reference map knows (the measurements on
+/// the true surface, [`crate::naive::NaiveMedian::seen`]) where ground truth exists;
+/// separately near steps (ground truth within `radius_m` spans more than `step_m`, or has
+/// no height there: an object's or a wall's footprint) and away from them, where a cell
+/// straddling a step may honestly hold either height.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SeenScore {
+    /// Cells seen (with ground truth).
+    pub cells_seen: usize,
+    /// Fraction of them the map knows.
+    pub coverage: f64,
+    /// Height RMSE over the seen cells the map knows (m).
+    pub rmse_m: f64,
+    /// Seen cells near steps.
+    pub cells_near_steps: usize,
+    /// Fraction of those the map knows.
+    pub coverage_near_steps: f64,
+    /// RMSE near steps (m).
+    pub rmse_near_steps_m: f64,
+    /// RMSE away from steps (m).
+    pub rmse_away_m: f64,
+}
+
+/// Scores `map` over the cells `seen` knows (all grids in the same frame, z up, with cells
+/// on the same lattice): see [`SeenScore`]. `None` when no seen cell has ground truth.
+pub fn compare_over_seen(
+    map: &Grid<f32>,
+    seen: &Grid<f32>,
+    gt: &Grid<f32>,
+    step_m: f64,
+    radius_m: f64,
+) -> Option<SeenScore> {
+    let g = seen.geometry;
+    let gg = gt.geometry;
+    let k = (radius_m / gg.resolution).round().max(0.0) as i64;
+    let near_step = |x: f64, y: f64| -> bool {
+        let Some((gr, gc)) = gg.cell_of(x, y) else {
+            return false;
+        };
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for dr in -k..=k {
+            for dc in -k..=k {
+                let (rr, cc) = (gr as i64 + dr, gc as i64 + dc);
+                match (rr >= 0 && cc >= 0)
+                    .then(|| gt.get(rr as usize, cc as usize))
+                    .flatten()
+                {
+                    Some(t) if !t.is_nan() => {
+                        lo = lo.min(t);
+                        hi = hi.max(t);
+                    }
+                    Some(_) => return true,
+                    None => {}
+                }
+            }
+        }
+        f64::from(hi - lo) > step_m
+    };
+    // (cells, known, sum of squared errors) near steps and away.
+    let mut near = (0usize, 0usize, 0.0f64);
+    let mut away = (0usize, 0usize, 0.0f64);
+    for r in 0..g.rows {
+        for c in 0..g.cols {
+            if seen.get(r, c).is_none_or(f32::is_nan) {
+                continue;
+            }
+            let (x, y) = g.center(r, c);
+            let Some(truth) = gt.sample_bilinear(x, y) else {
+                continue;
+            };
+            let acc = if near_step(x, y) {
+                &mut near
+            } else {
+                &mut away
+            };
+            acc.0 += 1;
+            if let Some(h) = map.at(x, y).filter(|v| !v.is_nan()) {
+                acc.1 += 1;
+                acc.2 += f64::from(h - truth).powi(2);
+            }
+        }
+    }
+    let cells = near.0 + away.0;
+    if cells == 0 {
+        return None;
+    }
+    let rmse = |sse: f64, n: usize| {
+        if n > 0 {
+            (sse / n as f64).sqrt()
+        } else {
+            f64::NAN
+        }
+    };
+    let frac = |k: usize, n: usize| if n > 0 { k as f64 / n as f64 } else { f64::NAN };
+    Some(SeenScore {
+        cells_seen: cells,
+        coverage: frac(near.1 + away.1, cells),
+        rmse_m: rmse(near.2 + away.2, near.1 + away.1),
+        cells_near_steps: near.0,
+        coverage_near_steps: frac(near.1, near.0),
+        rmse_near_steps_m: rmse(near.2, near.1),
+        rmse_away_m: rmse(away.2, away.1),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use stride_core::grid::GridGeometry;
+
+    #[test]
+    fn scores_over_the_cells_seen_near_and_away_from_steps() {
+        let g = GridGeometry {
+            origin_x: 0.0,
+            origin_y: 0.0,
+            resolution: 0.1,
+            rows: 4,
+            cols: 10,
+        };
+        // A 10 cm step between columns 4 and 5.
+        let gt = Grid::from_vec(
+            g,
+            (0..40)
+                .map(|i| if i % 10 >= 5 { 0.1f32 } else { 0.0 })
+                .collect(),
+        )
+        .unwrap();
+        // Seen: every cell but column 0. The map knows columns 2.. with a 1 cm error away from
+        // the step and 5 cm next to it (columns 4 and 5).
+        let seen = Grid::from_vec(
+            g,
+            (0..40)
+                .map(|i| if i % 10 == 0 { f32::NAN } else { 0.0 })
+                .collect(),
+        )
+        .unwrap();
+        let map = Grid::from_vec(
+            g,
+            (0..40)
+                .map(|i| {
+                    let (c, t) = (i % 10, if i % 10 >= 5 { 0.1f32 } else { 0.0 });
+                    match c {
+                        0 | 1 => f32::NAN,
+                        4 | 5 => t + 0.05,
+                        _ => t + 0.01,
+                    }
+                })
+                .collect(),
+        )
+        .unwrap();
+        let s = compare_over_seen(&map, &seen, &gt, 0.02, 0.1).unwrap();
+        assert_eq!(s.cells_seen, 36);
+        assert_eq!(s.cells_near_steps, 8);
+        assert!((s.coverage - 32.0 / 36.0).abs() < 1e-12, "{s:?}");
+        assert!((s.coverage_near_steps - 1.0).abs() < 1e-12);
+        assert!((s.rmse_near_steps_m - 0.05).abs() < 1e-6, "{s:?}");
+        assert!((s.rmse_away_m - 0.01).abs() < 1e-6, "{s:?}");
+        // A map that knows nothing seen covers nothing and has no error to state.
+        let empty = Grid::filled(g, f32::NAN);
+        let e = compare_over_seen(&empty, &seen, &gt, 0.02, 0.1).unwrap();
+        assert_eq!(e.coverage, 0.0);
+        assert!(e.rmse_m.is_nan());
+    }
 
     #[test]
     fn mse_coverage_and_performance_index() {

@@ -9,7 +9,7 @@
 /// The integer cell coordinate of `v` (m) for cells of `1 / inv` metres centred on
 /// multiples of the cell size: `floor(v inv + 0.5)`, so cell `k` covers `[k - 0.5, k + 0.5)`.
 #[inline]
-fn cell_coord(v: f64, inv: f64) -> i64 {
+pub(crate) fn cell_coord(v: f64, inv: f64) -> i64 {
     (v * inv + 0.5).floor() as i64
 }
 

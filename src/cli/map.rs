@@ -6,6 +6,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
 use stride::known_poses::{map_sequence, FrameCounts, MapperRun};
+use stride_core::grid::Grid;
 use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
@@ -14,6 +15,7 @@ use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
 use stride_mapping::metrics::performance_index;
+use stride_mapping::naive::NaiveMedian;
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers, MappingError};
 use stride_output::fs::{write_atomic, StagedDir};
@@ -26,7 +28,17 @@ pub enum MapperArg {
     Fankhauser,
     /// Both, on the same frames, side by side.
     Both,
+    /// The naive reference: each cell the median of every height that landed in it.
+    Naive,
+    /// Stack, Fankhauser and the naive reference side by side, and with a true terrain
+    /// the cells seen (measurements within 3 cm of the true surface), over which every map
+    /// is also scored.
+    All,
 }
+
+/// A measurement within this height of the true surface (m) shows that its cell was seen:
+/// the sensor's noise and bias at 3-4 m, well below the flying pixels in an edge's shadow.
+const SEEN_TOLERANCE_M: f64 = 0.03;
 
 #[derive(Debug, Args)]
 pub struct MapArgs {
@@ -146,7 +158,11 @@ pub fn stack_config(a: &MapArgs) -> Result<StackConfig> {
 
 /// The mappers asked for; an error naming the flags when the mapping crate refuses their
 /// parameters.
-fn make_mappers(a: &MapArgs, c: &StackConfig) -> Result<Vec<Box<dyn ElevationMapper>>> {
+fn make_mappers(
+    a: &MapArgs,
+    c: &StackConfig,
+    gt: Option<&Grid<f32>>,
+) -> Result<Vec<Box<dyn ElevationMapper>>> {
     let stack = || -> Result<Box<dyn ElevationMapper>, MappingError> {
         Ok(Box::new(StackMapper::new(c.clone())?))
     };
@@ -157,10 +173,30 @@ fn make_mappers(a: &MapArgs, c: &StackConfig) -> Result<Vec<Box<dyn ElevationMap
             ..FankhauserConfig::default()
         })?))
     };
+    let naive = || -> Box<dyn ElevationMapper> {
+        Box::new(NaiveMedian::new(
+            c.resolution_m,
+            (c.sensor.min_depth_m, c.sensor.max_depth_m),
+        ))
+    };
     let mappers = match a.mapper {
         MapperArg::Stack => vec![stack()?],
         MapperArg::Fankhauser => vec![fank()?],
         MapperArg::Both => vec![stack()?, fank()?],
+        MapperArg::Naive => vec![naive()],
+        MapperArg::All => {
+            let mut v = vec![stack()?, fank()?, naive()];
+            // The cells seen, when the true terrain is known.
+            if let Some(g) = gt {
+                v.push(Box::new(NaiveMedian::seen(
+                    c.resolution_m,
+                    (c.sensor.min_depth_m, c.sensor.max_depth_m),
+                    g.clone(),
+                    SEEN_TOLERANCE_M,
+                )));
+            }
+            v
+        }
     };
     Ok(mappers)
 }
@@ -184,6 +220,12 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
         m.insert("coverage".into(), Value::Null);
     }
     m.insert("cells_observed".into(), json!(r.layers.cells_observed()));
+    m.insert(
+        "over_seen_cells".into(),
+        r.seen
+            .and_then(|s| serde_json::to_value(s).ok())
+            .unwrap_or(Value::Null),
+    );
     if let Some(p) = &r.phantoms {
         m.insert(
             "phantoms".into(),
@@ -255,6 +297,19 @@ pub fn run(a: MapArgs) -> Result<()> {
             j["update_ms"]["p95"].as_f64().unwrap_or(f64::NAN),
             j["points_per_s"].as_f64().unwrap_or(f64::NAN)
         )?;
+        if let Some(s) = &r.seen {
+            crate::outln!(
+                "{:<11} over the {} cells seen: coverage {:.3}, RMSE {:.2} mm; near steps ({} cells) coverage {:.3}, RMSE {:.2} mm; away RMSE {:.2} mm",
+                "",
+                s.cells_seen,
+                s.coverage,
+                s.rmse_m * 1e3,
+                s.cells_near_steps,
+                s.coverage_near_steps,
+                s.rmse_near_steps_m * 1e3,
+                s.rmse_away_m * 1e3
+            )?;
+        }
     }
     crate::outln!("written to {}", a.out.display())?;
     Ok(())
@@ -265,12 +320,6 @@ pub fn run(a: MapArgs) -> Result<()> {
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let stack = stack_config(a)?;
-    let mappers = make_mappers(a, &stack).with_context(|| {
-        format!(
-            "--resolution {} and --size {} give no valid map",
-            stack.resolution_m, stack.size_m
-        )
-    })?;
     let seq = TumSequence::open(
         &a.dataset,
         a.camera.as_deref(),
@@ -303,6 +352,12 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
     };
+    let mappers = make_mappers(a, &stack, gt.as_ref()).with_context(|| {
+        format!(
+            "--resolution {} and --size {} give no valid map",
+            stack.resolution_m, stack.size_m
+        )
+    })?;
     let pb = crate::cli::progress_bar(
         a.max_frames.map_or(seq.len(), |m| m.min(seq.len())),
         "mapping",
@@ -362,6 +417,15 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
                 j["update_ms"]["median"].as_f64().unwrap_or(f64::NAN)
             ),
             format!("{:.3e}", j["points_per_s"].as_f64().unwrap_or(f64::NAN)),
+            r.seen.map_or("-".to_owned(), |s| {
+                format!(
+                    "{:.3} / {:.2} / {:.2} / {:.2}",
+                    s.coverage,
+                    s.rmse_m * 1e3,
+                    s.rmse_near_steps_m * 1e3,
+                    s.rmse_away_m * 1e3
+                )
+            }),
         ]);
         let rel = if runs.len() > 1 {
             format!("{}/elevation.png", r.name)
@@ -410,6 +474,7 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
             "cells",
             "update ms (median)",
             "points/s",
+            "over the cells seen: coverage / RMSE / near steps / away (mm)",
         ],
         rows,
     );
