@@ -33,7 +33,7 @@
 //! [`ElevationMapper::finished`], when [`StackConfig::median_filter`] asks for it.
 
 use crate::checks::{LosTable, SeeThrough, Target};
-use crate::column::{Accs, Cell, Stack};
+use crate::column::{Accs, Cell, Stack, Voxel};
 use crate::error::{self, MappingError};
 use crate::fuse::{Band, BandUpdate, Fusion};
 use crate::input::{
@@ -224,6 +224,46 @@ impl StackMapper {
             let cells = self.window.cells();
             for list in &mut self.pending {
                 list.retain(|&ci| cells.get(ci as usize).is_some_and(|c| c.pending));
+            }
+            self.reload_archived();
+        }
+    }
+
+    /// Columns that come back into the window resume from the archive (an established
+    /// column with one voxel at its height) instead of starting afresh; they leave the
+    /// archive, which holds only columns outside the window.
+    fn reload_archived(&mut self) {
+        let voxel_h = self.cfg.voxel_height_m as f32;
+        if self.archive.is_empty() {
+            return;
+        }
+        let entered = self.window.entered().to_vec();
+        for i in entered {
+            let key = self.window.cell_of_index(i);
+            let Some(a) = self.archive.remove(&key) else {
+                continue;
+            };
+            let (Some(c), Some(st)) = (self.window.cells_mut().get_mut(i), self.stacks.get_mut(i))
+            else {
+                continue;
+            };
+            *c = Cell {
+                h: a.h,
+                var: a.var,
+                updates: a.updates,
+                vitality: a.vitality,
+                n_voxels: 1,
+                has_estimate: true,
+                established: true,
+                ..Cell::default()
+            };
+            if let Some(v) = st.voxels.first_mut() {
+                *v = Voxel {
+                    idx: (a.h / voxel_h).floor() as i32,
+                    h: a.h,
+                    var: a.var,
+                    last_frame: 0,
+                };
             }
         }
     }

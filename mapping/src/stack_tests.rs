@@ -428,3 +428,38 @@ fn mappers_refuse_invalid_parameters() {
     })
     .is_err());
 }
+
+#[test]
+fn a_column_left_behind_resumes_when_the_window_comes_back() {
+    let mut m = StackMapper::new(config()).unwrap();
+    let patch = |z: f64| -> Vec<Point3<f64>> {
+        ground(1.0, 1.05, 0.0, 0.05)
+            .into_iter()
+            .map(|p| Point3::new(p.x, p.y, z))
+            .collect()
+    };
+    for _ in 0..3 {
+        integrate(&mut m, sensor_pose(), &patch(0.05));
+    }
+    let updates_at = |m: &StackMapper| m.export().updates.at(1.02, 0.02);
+    assert_eq!(updates_at(&m), Some(3.0));
+    // Walk 10 m away: the window leaves the patch behind (it stays in the map) ...
+    let away = Isometry3::from_parts(Translation3::new(10.0, 0.0, 0.0), Default::default())
+        * sensor_pose();
+    let far: Vec<Point3<f64>> = ground(11.0, 11.05, 0.0, 0.05);
+    integrate(&mut m, away, &far);
+    assert!(!m.window.contains(m.window.world_cell(1.02, 0.02)));
+    assert_eq!(updates_at(&m), Some(3.0));
+    // ... and come back: the column resumes, established, and takes the next measurement
+    // at once (starting afresh, one more update would leave it below the vitality threshold
+    // and the map would still show the old 5 cm).
+    integrate(&mut m, sensor_pose(), &patch(0.07));
+    assert!(m.window.contains(m.window.world_cell(1.02, 0.02)));
+    assert_eq!(updates_at(&m), Some(4.0));
+    let h = height_at(&m, 1.02, 0.02).unwrap();
+    assert!(h > 0.052 && h < 0.07, "moved towards the new 7 cm: {h}");
+    assert!(
+        m.archive.is_empty(),
+        "the archive holds only columns outside the window"
+    );
+}

@@ -23,6 +23,8 @@ pub struct Window<T> {
     cells: Vec<T>,
     /// Whether [`Window::follow`] has placed the window yet.
     placed: bool,
+    /// Storage indices of the cells that entered the window in the last move.
+    entered: Vec<usize>,
 }
 
 impl<T: Clone + Default> Window<T> {
@@ -35,6 +37,7 @@ impl<T: Clone + Default> Window<T> {
             origin,
             cells: vec![T::default(); size.max(1) * size.max(1)],
             placed: false,
+            entered: Vec::new(),
         }
     }
 
@@ -182,6 +185,7 @@ impl<T: Clone + Default> Window<T> {
             return;
         }
         let n = self.size as i64;
+        self.entered.clear();
         for i in 0..self.cells.len() {
             let cell = self.cell_of_index(i);
             let (r, c) = (cell.0 - origin.0, cell.1 - origin.1);
@@ -191,9 +195,16 @@ impl<T: Clone + Default> Window<T> {
                     evict(cell, v);
                     *v = T::default();
                 }
+                self.entered.push(i);
             }
         }
         self.origin = origin;
+    }
+
+    /// Storage indices of the cells that entered the window in the last move (their
+    /// storage was reset; [`Window::cell_of_index`] gives their world cells).
+    pub fn entered(&self) -> &[usize] {
+        &self.entered
     }
 
     /// Keeps the window ahead of a sensor: its centre belongs `lookahead_m` (m) ahead of
