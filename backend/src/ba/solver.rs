@@ -116,6 +116,10 @@ fn total_cost(p: &Problem, x: &Vars, layout: &Layout, opts: &SolverOptions) -> O
     cost.is_finite().then_some(cost)
 }
 
+/// Largest memory (bytes) for the copies of the reduced system's blocks when every partition
+/// is summed at once.
+const WAVE_ALL_BYTES: usize = 4 << 20;
+
 /// Marquardt's scaling of a diagonal entry, kept within a sane range.
 fn damp(d: f64) -> f64 {
     d.clamp(1e-6, 1e32)
@@ -330,11 +334,18 @@ fn reduced(
     let mut blocks = vec![Matrix6::zeros(); pattern.blocks()];
     let mut rhs: Vec<Vector6<f64>> = lin.gc.iter().map(|g| -g).collect();
     rhs.resize(n_cams, Vector6::zeros());
-    // As many partitions at a time as there are threads, each added in order as its wave
-    // ends: the sum (and so the result) is the same as with every partition at once, but
-    // a large problem holds a few copies of its blocks instead of one per partition (300
-    // keyframes that all see each other: 13 MB a copy).
-    let wave = rayon::current_num_threads().max(1);
+    // Partitions are summed in waves, each added in order as its wave ends: the sum (and
+    // so the result) is the same whatever the wave's size. A small problem sums every
+    // partition at once, so that a thread the machine descheduled does not hold the others
+    // up at the end of each wave; a large one as many at a time as there are threads, to
+    // hold a few copies of its blocks instead of one per partition (300 keyframes that all
+    // see each other: 13 MB a copy).
+    let copy_bytes = pattern.blocks() * std::mem::size_of::<Matrix6<f64>>();
+    let wave = if copy_bytes * layout.partitions.len() <= WAVE_ALL_BYTES {
+        layout.partitions.len().max(1)
+    } else {
+        rayon::current_num_threads().max(1)
+    };
     for chunk in layout.partitions.chunks(wave) {
         let partial: Vec<CameraSums> = chunk.par_iter().map(partition_sums).collect();
         for (pb, pr) in &partial {
