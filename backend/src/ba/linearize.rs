@@ -101,8 +101,10 @@ impl Linearization {
                     let Some(r) = layout.point_ranges.get(j) else {
                         continue;
                     };
+                    // Positions within the partition's slice (point ranges only grow).
+                    let local = r.start.checked_sub(first).zip(r.end.checked_sub(first));
                     let (Some(pt), Some(out)) =
-                        (x.points.get(j), obs.get_mut(r.start - first..r.end - first))
+                        (x.points.get(j), local.and_then(|(a, b)| obs.get_mut(a..b)))
                     else {
                         continue;
                     };
