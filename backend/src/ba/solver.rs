@@ -2,12 +2,12 @@
 //! complement (each point a 3x3 block) and the reduced camera system solved by sparse
 //! Cholesky ([`ReducedSystem`]).
 //!
-//! Per iteration: linearize every edge after an accepted step ([`super::linearize`], in
-//! parallel over fixed partitions of the points); for the current damping, invert each
-//! point's 3x3 block and sum the reduced system per partition (each point's `Y = W V^-1`
-//! formed on the spot), the partitions' sums added in partition order, so results are
-//! bit-identical whatever the thread count; solve; back-substitute the points; accept the
-//! step if the cost drops (Nielsen's damping update), else raise the damping.
+//! Per iteration: linearize every edge after an accepted step (the private `linearize`
+//! module, in parallel over fixed partitions of the points); for the current damping,
+//! invert each point's 3x3 block and sum the reduced system per partition (each point's
+//! `Y = W V^-1` formed on the spot), the partitions' sums added in partition order, so
+//! results are bit-identical whatever the thread count; solve; back-substitute the points;
+//! accept the step if the cost drops (Nielsen's damping update), else raise the damping.
 //! A step that makes any number non-finite is rejected like one that raises the cost, so the
 //! estimate never becomes NaN.
 
