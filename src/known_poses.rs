@@ -35,7 +35,8 @@ pub struct MapperRun {
     pub score: Option<MapScore>,
     /// Phantom obstacles over flat ground truth.
     pub phantoms: Option<PhantomScore>,
-    /// Scored over the cells seen (when a naive reference map ran beside it).
+    /// Scored over the cells seen (when the cells seen, `NaiveMedian::seen`, were mapped
+    /// beside it).
     pub seen: Option<SeenScore>,
     /// The floor's plane fit.
     pub floor: Option<FloorFit>,

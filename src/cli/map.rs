@@ -187,13 +187,16 @@ fn make_mappers(
         MapperArg::All => {
             let mut v = vec![stack()?, fank()?, naive()];
             // The cells seen, when the true terrain is known.
-            if let Some(g) = gt {
-                v.push(Box::new(NaiveMedian::seen(
+            match gt {
+                Some(g) => v.push(Box::new(NaiveMedian::seen(
                     c.resolution_m,
                     (c.sensor.min_depth_m, c.sensor.max_depth_m),
                     g.clone(),
                     SEEN_TOLERANCE_M,
-                )));
+                ))),
+                None => tracing::warn!(
+                    "--mapper all without a true terrain: the cells seen are not mapped and no map is scored over them"
+                ),
             }
             v
         }
