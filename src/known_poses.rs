@@ -140,12 +140,16 @@ pub fn map_sequence(
         });
     }
     // With the cells seen among the maps, every map is also scored over them.
-    if let (Some(g), Some(i)) = (gt, runs.iter().position(|r| r.name == "seen")) {
-        let seen = runs.get(i).map(|r| r.layers.elevation.clone());
-        for r in &mut runs {
-            r.seen = seen
-                .as_ref()
-                .and_then(|s| compare_over_seen(&r.layers.elevation, s, g, STEP_M, STEP_RADIUS_M));
+    if let (Some(g), Some(seen)) = (gt, runs.iter().find(|r| r.name == "seen")) {
+        let scores: Vec<Option<SeenScore>> = runs
+            .iter()
+            .map(|r| {
+                let s = &seen.layers.elevation;
+                compare_over_seen(&r.layers.elevation, s, g, STEP_M, STEP_RADIUS_M)
+            })
+            .collect();
+        for (r, score) in runs.iter_mut().zip(scores) {
+            r.seen = score;
         }
     }
     Ok((runs, counts))

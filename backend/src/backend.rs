@@ -114,15 +114,25 @@ fn odometry_information(
     info_left: &Matrix6<f64>,
     fallback: (f64, f64),
 ) -> Matrix6<f64> {
-    let a = left_from_right(world_from_camera);
-    let info = a.transpose() * info_left * a;
-    let info = (info + info.transpose()) * 0.5;
+    let info = tangent_information(world_from_camera, info_left);
     let usable = info.iter().all(|v| v.is_finite()) && info.cholesky().is_some();
     if usable {
         info
     } else {
         diagonal_information(fallback)
     }
+}
+
+/// The information `info_left` of a pose estimate `world_from_camera` (left perturbation,
+/// as RANSAC and the odometry give it) in the optimizer's tangent space (camera-frame right
+/// perturbation), symmetrized.
+pub(crate) fn tangent_information(
+    world_from_camera: &Isometry3<f64>,
+    info_left: &Matrix6<f64>,
+) -> Matrix6<f64> {
+    let a = left_from_right(world_from_camera);
+    let info = a.transpose() * info_left * a;
+    (info + info.transpose()) * 0.5
 }
 
 /// The information of a pose error with independent standard deviations `(t, r)` (m, rad)

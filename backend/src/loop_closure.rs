@@ -23,11 +23,11 @@
 //! Deterministic: candidates in a fixed order, RANSAC seeded by the two keyframes.
 
 use crate::ba::{solve, PoseEdge, PoseVar, Problem, SolverOptions};
-use crate::backend::{diagonal_information, Backend};
+use crate::backend::{diagonal_information, tangent_information, Backend};
 use crate::config::BackendMode;
 use crate::error::BackendError;
 use crate::map::{KeyframeId, PointId};
-use crate::se3::{is_finite, left_from_right};
+use crate::se3::is_finite;
 use nalgebra::{Isometry3, Matrix6};
 use std::collections::BTreeMap;
 use stride_core::rng::{key, SplitMix64};
@@ -234,8 +234,6 @@ impl Backend {
         {
             return None;
         }
-        let a = left_from_right(&e.ref_from_cur);
-        let information = a.transpose() * e.information * a;
         let inliers = pairs
             .iter()
             .zip(&e.inliers)
@@ -246,7 +244,7 @@ impl Backend {
             matched,
             matches: pairs.len(),
             world_from_new: e.ref_from_cur,
-            information: (information + information.transpose()) * 0.5,
+            information: tangent_information(&e.ref_from_cur, &e.information),
             pairs: inliers,
         })
     }

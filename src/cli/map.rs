@@ -173,12 +173,9 @@ fn make_mappers(
             ..FankhauserConfig::default()
         })?))
     };
-    let naive = || -> Box<dyn ElevationMapper> {
-        Box::new(NaiveMedian::new(
-            c.resolution_m,
-            (c.sensor.min_depth_m, c.sensor.max_depth_m),
-        ))
-    };
+    let range_m = (c.sensor.min_depth_m, c.sensor.max_depth_m);
+    let naive =
+        || -> Box<dyn ElevationMapper> { Box::new(NaiveMedian::new(c.resolution_m, range_m)) };
     let mappers = match a.mapper {
         MapperArg::Stack => vec![stack()?],
         MapperArg::Fankhauser => vec![fank()?],
@@ -190,7 +187,7 @@ fn make_mappers(
             match gt {
                 Some(g) => v.push(Box::new(NaiveMedian::seen(
                     c.resolution_m,
-                    (c.sensor.min_depth_m, c.sensor.max_depth_m),
+                    range_m,
                     g.clone(),
                     SEEN_TOLERANCE_M,
                 ))),
