@@ -5,8 +5,9 @@
 
 use crate::input::{
     Cloud, DepthPixel, EdgeFilter, HeightModel, HeightSample, Placement, RayCache, Rays, Reason,
-    Rejections, SensorFrame,
+    Rejections, SensorFrame, VarianceConsts,
 };
+use crate::window::CellBinner;
 use rayon::prelude::*;
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
@@ -59,16 +60,16 @@ impl Binned {
 }
 
 /// Transforms a frame's measurements into map-frame heights with height variances and
-/// assigns each to its cell: `locate(x, y)` gives the storage index of the cell containing
-/// map-frame `(x, y)` (m) and its band (below `bands`), or `None` outside the window (see
-/// [`crate::window::Window::band_indexer`]). Runs in parallel over [`SLICES`] slices of the input;
+/// assigns each to its cell: `binner` gives the storage index of the cell containing
+/// map-frame `(x, y)` (m) and its band (below `bands`), or none outside the window (see
+/// [`crate::window::Window::binner`]). Runs in parallel over [`SLICES`] slices of the input;
 /// within a band the measurements keep their input order. Invalid measurements are
 /// dropped and counted by reason (including `outside_window`).
-pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> + Sync>(
+pub fn prepare_binned<M: HeightModel>(
     frame: &SensorFrame<'_>,
     model: &M,
     rays: &mut RayCache,
-    locate: L,
+    binner: &CellBinner,
     bands: usize,
     edge: Option<&EdgeFilter>,
     out: &mut Binned,
@@ -91,19 +92,8 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
     let push = |res: Result<HeightSample, Reason>,
                 lists: &mut Vec<Vec<CellPoint>>,
                 rej: &mut Rejections| match res {
-        Ok(p) => match locate(p.x, p.y) {
-            Some((cell, band)) => {
-                if let Some(list) = lists.get_mut(band) {
-                    list.push(CellPoint {
-                        cell: cell as u32,
-                        z_m: p.z as f32,
-                        // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
-                        var_m2: (p.var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
-                    });
-                } else {
-                    rej.outside_window += 1;
-                }
-            }
+        Ok(p) => match binner.locate(p.x, p.y) {
+            Some((cell, band)) => bin(lists, rej, cell as u32, band, p.z, p.var),
             None => rej.outside_window += 1,
         },
         Err(r) => rej.count(r),
@@ -119,18 +109,16 @@ pub fn prepare_binned<M: HeightModel, L: Fn(f64, f64) -> Option<(usize, usize)> 
                 .enumerate()
                 .for_each(|(s, (lists, rej))| {
                     let rows = (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h);
-                    depth_slice(
-                        DepthSlice {
-                            depth: depth_m,
-                            camera,
-                            rays,
-                            rows,
-                            edge,
-                            place: &place,
-                            model,
-                        },
-                        |res| push(res, lists, rej),
-                    );
+                    let slice = DepthSlice {
+                        depth: depth_m,
+                        camera,
+                        rays,
+                        rows,
+                        edge,
+                        place: &place,
+                        model,
+                    };
+                    bin_depth_slice(slice, binner, lists, rej);
                 });
         }
         Cloud::Points {
@@ -321,6 +309,28 @@ struct RowPoint {
     ok: bool,
 }
 
+/// Puts a valid measurement into its band's list, or counts it as outside the window when
+/// the band does not exist.
+#[inline]
+fn bin(
+    lists: &mut [Vec<CellPoint>],
+    rej: &mut Rejections,
+    cell: u32,
+    band: usize,
+    z: f64,
+    var: f64,
+) {
+    match lists.get_mut(band) {
+        Some(list) => list.push(CellPoint {
+            cell,
+            z_m: z as f32,
+            // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
+            var_m2: (var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
+        }),
+        None => rej.outside_window += 1,
+    }
+}
+
 /// Turns the pixels of a slice of rows into map points (or reasons to drop them), in
 /// pixel order. Each row goes through a branch-free arithmetic pass the compiler can
 /// vectorise, then a pass that hands valid points (or the reason for an invalid one) to
@@ -418,6 +428,153 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                 debug_assert!(is_edge(d, near));
                 Reason::DepthEdge
             }));
+        }
+    }
+}
+
+/// Per-pixel flags of [`FlatRow`].
+const VALID: u8 = 1;
+const INSIDE: u8 = 2;
+const MAYBE_EDGE: u8 = 4;
+
+/// One row of a depth image after the vectorised pass of [`bin_depth_slice`]: per pixel the
+/// height (m), its variance (m²), the window-relative cell row and column, and flags.
+#[derive(Default)]
+struct FlatRow {
+    xn: Vec<f32>,
+    yn: Vec<f32>,
+    z: Vec<f32>,
+    var: Vec<f32>,
+    row: Vec<u32>,
+    col: Vec<u32>,
+    flags: Vec<u8>,
+}
+
+/// [`depth_slice`] straight into band lists, in f32: the window's corner is subtracted
+/// from the sensor position once per frame, so map coordinates within the window keep
+/// sub-micrometre precision. Each row goes through one pass without branches (back-
+/// projection, transform, variance, range and edge bounds, cell), which the compiler
+/// vectorises with 4-wide f32 lanes, then a scalar pass scatters the valid points into
+/// their bands. The few pixels near a depth jump get the edge filter's exact test in f64,
+/// and dropped pixels are classified by the f64 path, so reasons and counts stay those of
+/// [`depth_slice`].
+fn bin_depth_slice<M: HeightModel + ?Sized>(
+    s: DepthSlice<'_, M>,
+    binner: &CellBinner,
+    lists: &mut [Vec<CellPoint>],
+    rej: &mut Rejections,
+) {
+    let w = (s.depth.width() as usize).max(1);
+    let pl = s.place;
+    let (x0, y0) = binner.corner_m();
+    let rot = pl.rot.cast::<f32>();
+    let (tx, ty, tz) = (
+        (pl.trans.x - x0) as f32,
+        (pl.trans.y - y0) as f32,
+        pl.trans.z as f32,
+    );
+    let (lo, hi) = (pl.range.0 as f32, pl.range.1 as f32);
+    let inv_cell = binner.cells_per_m() as f32;
+    let nf = binner.side() as f32;
+    let consts = VarianceConsts {
+        r3: [pl.r3.x as f32, pl.r3.y as f32, pl.r3.z as f32],
+        inv_fx: (1.0 / s.camera.fx()) as f32,
+        inv_fy: (1.0 / s.camera.fy()) as f32,
+    };
+    let f_px = s.camera.fx();
+    let edge_slope = s
+        .edge
+        .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
+    let exact_edge = |d: f64, near: f32| {
+        s.edge
+            .is_some_and(|e| d - f64::from(near) > e.threshold_m(d, f_px, s.model.depth_sigma_m(d)))
+    };
+    let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
+    let mut r = FlatRow::default();
+    for v in s.rows.clone() {
+        let Some(drow) = s.depth.as_slice().get(v * w..(v + 1) * w) else {
+            continue;
+        };
+        s.rays.row(v, w, &mut rays);
+        if s.edge.is_some() {
+            nearest_neighbour_row(s.depth, v, &mut scratch, &mut nearest);
+        } else {
+            nearest.clear();
+        }
+        nearest.resize(drow.len(), f32::INFINITY);
+        r.xn.clear();
+        r.xn.extend(rays.iter().map(|&(x, _)| x as f32));
+        r.yn.clear();
+        r.yn.extend(rays.iter().map(|&(_, y)| y as f32));
+        for buf in [&mut r.z, &mut r.var] {
+            buf.clear();
+            buf.resize(drow.len(), 0.0);
+        }
+        for buf in [&mut r.row, &mut r.col] {
+            buf.clear();
+            buf.resize(drow.len(), 0);
+        }
+        r.flags.clear();
+        r.flags.resize(drow.len(), 0);
+        let n = drow
+            .len()
+            .min(r.xn.len())
+            .min(r.yn.len())
+            .min(nearest.len());
+        // The vectorised pass: every slice has length `n`, so the bounds checks go.
+        let (xs, ys, near) = (&r.xn[..n], &r.yn[..n], &nearest[..n]);
+        let (zs, vars, rows, cols, flags) = (
+            &mut r.z[..n],
+            &mut r.var[..n],
+            &mut r.row[..n],
+            &mut r.col[..n],
+            &mut r.flags[..n],
+        );
+        let d_row = &drow[..n];
+        for i in 0..n {
+            let (d, xn, yn) = (d_row[i], xs[i], ys[i]);
+            let (px, py) = (xn * d, yn * d);
+            let qx = rot[(0, 0)] * px + rot[(0, 1)] * py + rot[(0, 2)] * d + tx;
+            let qy = rot[(1, 0)] * px + rot[(1, 1)] * py + rot[(1, 2)] * d + ty;
+            let qz = rot[(2, 0)] * px + rot[(2, 1)] * py + rot[(2, 2)] * d + tz;
+            let var = s.model.pixel_variance_f32(&consts, xn, yn, d);
+            let (cf, rf) = (qx * inv_cell, qy * inv_cell);
+            let valid = (d >= lo) & (d <= hi) & (var > 0.0) & (var < f32::INFINITY);
+            let inside = (cf >= 0.0) & (cf < nf) & (rf >= 0.0) & (rf < nf);
+            let maybe_edge = d - near[i] > edge_slope * d;
+            zs[i] = qz;
+            vars[i] = var;
+            // Truncation is the floor for the non-negative values inside the window (f32 to
+            // i32 is one packed instruction; to u32 is not).
+            cols[i] = cf as i32 as u32;
+            rows[i] = rf as i32 as u32;
+            flags[i] = u8::from(valid) * VALID
+                + u8::from(inside) * INSIDE
+                + u8::from(maybe_edge) * MAYBE_EDGE;
+        }
+        for (u, (((&f, &d), &z), &var)) in
+            r.flags.iter().zip(drow).zip(&r.z).zip(&r.var).enumerate()
+        {
+            let near_u = nearest.get(u).copied().unwrap_or(f32::INFINITY);
+            let kept = f & VALID != 0 && (f & MAYBE_EDGE == 0 || !exact_edge(f64::from(d), near_u));
+            if kept && f & INSIDE != 0 {
+                let (Some(&row), Some(&col)) = (r.row.get(u), r.col.get(u)) else {
+                    continue;
+                };
+                let (cell, band) = binner.storage_of(row, col);
+                bin(lists, rej, cell, band, f64::from(z), f64::from(var));
+            } else if kept {
+                rej.outside_window += 1;
+            } else if f & VALID != 0 {
+                rej.depth_edge += 1;
+            } else {
+                let ray = rays.get(u).copied().unwrap_or((f64::NAN, f64::NAN));
+                rej.count(
+                    pl.pixel(s.model, s.camera, u, v, ray, d)
+                        .err()
+                        .unwrap_or(Reason::BadVariance),
+                );
+            }
         }
     }
 }

@@ -14,6 +14,7 @@
 use crate::error::{self, MappingError};
 use crate::input::{
     prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
+    VarianceConsts,
 };
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
@@ -81,6 +82,16 @@ impl HeightModel for KinectNguyenHeight {
 
     fn depth_sigma_m(&self, d: f64) -> f64 {
         self.normal_a + self.normal_b * (d - self.normal_c).powi(2)
+    }
+
+    #[inline(always)]
+    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+        let distance = d * (xn * xn + yn * yn + 1.0).sqrt();
+        let e = distance - self.normal_c as f32;
+        let normal = self.normal_a as f32 + self.normal_b as f32 * e * e;
+        let lateral = self.lateral as f32 * distance;
+        let [r3x, r3y, r3z] = k.r3;
+        lateral * lateral * (r3x * r3x + r3y * r3y) + normal * normal * r3z * r3z
     }
 }
 
@@ -247,7 +258,7 @@ impl ElevationMapper for FankhauserMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            self.window.band_indexer(size.div_ceil(BANDS)),
+            &self.window.binner(size.div_ceil(BANDS)),
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,

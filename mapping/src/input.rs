@@ -127,6 +127,21 @@ pub trait HeightModel: Sync {
     fn range_m(&self) -> (f64, f64);
     /// Standard deviation of a depth measurement `d` (m) along the optical axis (m).
     fn depth_sigma_m(&self, d: f64) -> f64;
+    /// [`HeightModel::pixel_variance`] in f32, for the mappers' vectorised input stage: a
+    /// pixel with undistorted normalised coordinates `(xn, yn)` and depth `d` (m). Must be
+    /// free of branches and calls that stop the vectorisation.
+    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32;
+}
+
+/// A frame's constants of [`HeightModel::pixel_variance_f32`].
+#[derive(Debug, Clone, Copy)]
+pub struct VarianceConsts {
+    /// The map's z axis in the sensor frame (third row of the map-from-sensor rotation).
+    pub r3: [f32; 3],
+    /// `1 / fx` and `1 / fy` of the camera (1/px).
+    pub inv_fx: f32,
+    /// See `inv_fx`.
+    pub inv_fy: f32,
 }
 
 /// A front-end filter of depth images against flying pixels (returns between a foreground
@@ -240,6 +255,18 @@ impl HeightModel for PrimeSenseHeight {
 
     fn depth_sigma_m(&self, d: f64) -> f64 {
         self.model.sigma_d(d)
+    }
+
+    #[inline(always)]
+    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+        let m = &self.model;
+        let [k1, k2, k3, k4] = m.depth_sigma_coeffs.map(|c| c as f32);
+        let s = (((k1 * d + k2) * d + k3) * d + k4).max(m.min_sigma_d_m as f32);
+        let [r3x, r3y, r3z] = k.r3;
+        let a = r3x * d * k.inv_fx;
+        let b = r3y * d * k.inv_fy;
+        let c = r3x * xn + r3y * yn + r3z;
+        m.var_u_px2 as f32 * a * a + m.var_v_px2 as f32 * b * b + s * s * c * c
     }
 }
 

@@ -95,3 +95,108 @@ fn inconsistent_frames_cannot_be_built() {
         }
     ));
 }
+
+/// The mappers' vectorised f32 input stage (`prepare_binned` on a depth image) keeps the
+/// points, cells, heights, variances and rejection counts of the f64 path
+/// (`filtered_map_points` binned one point at a time), for both sensor models.
+#[test]
+fn the_vectorised_input_stage_agrees_with_the_f64_path() {
+    use crate::fankhauser::KinectNguyenHeight;
+    use crate::window::Window;
+    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let mut depth = DepthImage::filled(64, 48, 0.0);
+    for v in 0..48u32 {
+        for u in 0..64u32 {
+            // A tilted floor with a box in front of it (a depth jump), holes and bad values.
+            let d = if (20..30).contains(&u) && (10..20).contains(&v) {
+                0.9
+            } else {
+                1.2 + 0.02 * f64::from(v)
+            };
+            *depth.get_mut(u, v).unwrap() = d as f32;
+        }
+    }
+    for (u, v, d) in [
+        (0, 0, 0.0),
+        (5, 5, f32::NAN),
+        (6, 5, f32::INFINITY),
+        (7, 5, 9.0),
+        (8, 5, 0.1),
+    ] {
+        *depth.get_mut(u, v).unwrap() = d;
+    }
+    let pose = Isometry3::from_parts(
+        Translation3::new(12.3, -4.5, 0.5),
+        UnitQuaternion::from_euler_angles(-2.0, 0.05, 0.4),
+    );
+    let frame = SensorFrame::depth(&depth, &cam, pose, 0.0).unwrap();
+    // A small window that cuts the view, so that some points fall outside it.
+    let mut window: Window<u8> = Window::new(60, 0.01, (0, 0));
+    window.follow(&pose, 0.9, 0.0, |_, _| {});
+    let binner = window.binner(7);
+    let bands = 60usize.div_ceil(7);
+    let edge = EdgeFilter::default();
+    fn check<M: HeightModel>(
+        model: &M,
+        frame: &SensorFrame<'_>,
+        binner: &crate::window::CellBinner,
+        bands: usize,
+        edge: &EdgeFilter,
+    ) {
+        let mut binned = Binned::default();
+        let rej = prepare_binned(
+            frame,
+            model,
+            &mut RayCache::default(),
+            binner,
+            bands,
+            Some(edge),
+            &mut binned,
+        );
+        let (pts, mut want) = filtered_map_points(frame, model, Some(edge));
+        let mut expected: Vec<(u32, usize, f64, f64)> = Vec::new();
+        for p in &pts {
+            match binner.locate(p.x, p.y) {
+                Some((cell, band)) => expected.push((cell as u32, band, p.z, p.var)),
+                None => want.outside_window += 1,
+            }
+        }
+        assert_eq!(rej, want);
+        assert!(want.depth_edge > 0 && want.outside_window > 0 && rej.no_return > 0);
+        let got: Vec<(u32, usize, f32, f32)> = (0..bands)
+            .flat_map(|b| binned.band(b).map(move |c| (c.cell, b, c.z_m, c.var_m2)))
+            .collect();
+        expected.sort_by_key(|e| (e.1, e.0));
+        let mut got_sorted = got.clone();
+        got_sorted.sort_by_key(|g| (g.1, g.0));
+        assert_eq!(got.len(), expected.len());
+        for (g, e) in got_sorted.iter().zip(&expected) {
+            assert_eq!((g.0, g.1), (e.0, e.1));
+        }
+        // Heights and variances per cell, compared as sums (order within a cell may differ).
+        let sum = |v: &mut dyn Iterator<Item = (u32, f64, f64)>| {
+            let mut m = std::collections::BTreeMap::new();
+            for (c, z, var) in v {
+                let e = m.entry(c).or_insert((0.0, 0.0));
+                e.0 += z;
+                e.1 += var;
+            }
+            m
+        };
+        let a = sum(&mut got.iter().map(|g| (g.0, f64::from(g.2), f64::from(g.3))));
+        let b = sum(&mut expected.iter().map(|e| (e.0, e.2, e.3)));
+        for ((ca, (za, va)), (cb, (zb, vb))) in a.iter().zip(&b) {
+            assert_eq!(ca, cb);
+            assert!((za - zb).abs() < 1e-5, "cell {ca}: heights {za} vs {zb}");
+            assert_relative_eq!(*va, *vb, max_relative = 1e-4);
+        }
+    }
+    check(&PrimeSenseHeight::default(), &frame, &binner, bands, &edge);
+    check(
+        &KinectNguyenHeight::default(),
+        &frame,
+        &binner,
+        bands,
+        &edge,
+    );
+}

@@ -406,7 +406,7 @@ impl ElevationMapper for StackMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            self.window.band_indexer(size.div_ceil(BANDS)),
+            &self.window.binner(size.div_ceil(BANDS)),
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,

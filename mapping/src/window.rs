@@ -13,6 +13,82 @@ pub(crate) fn cell_coord(v: f64, inv: f64) -> i64 {
     (v * inv + 0.5).floor() as i64
 }
 
+/// Where map-frame points fall in a [`Window`]'s storage: the cell's storage index and its
+/// band (storage rows split into bands of equal height), without a division per point.
+/// A snapshot of the window's placement: valid until the window moves.
+#[derive(Debug, Clone, Copy)]
+pub struct CellBinner {
+    /// Cells per metre.
+    inv: f64,
+    /// World cell row and column of the window's lowest corner cell.
+    or: i64,
+    oc: i64,
+    /// Side in cells.
+    n: i64,
+    /// Storage row and column of the lowest corner cell.
+    mr: i64,
+    mc: i64,
+    /// `floor(r / rows_per_band)` is `(r * magic) >> 32` (exact for `r < 2^32 / rows_per_band`).
+    magic: u64,
+}
+
+impl CellBinner {
+    /// Storage index and band of the cell containing map-frame `(x, y)` (m), or `None`
+    /// outside the window. Cell `k` covers `[k - 0.5, k + 0.5)` cells, as [`Window::world_cell`].
+    #[inline]
+    pub fn locate(&self, x: f64, y: f64) -> Option<(usize, usize)> {
+        let r = cell_coord(y, self.inv) - self.or;
+        let c = cell_coord(x, self.inv) - self.oc;
+        if r < 0 || c < 0 || r >= self.n || c >= self.n {
+            return None;
+        }
+        Some(self.storage(r, c))
+    }
+
+    /// Map-frame `(x, y)` (m) of the window's lowest corner (the lower edges of its lowest
+    /// row and column): a point's window-relative cell column is `floor((x - x0) / res)`.
+    pub fn corner_m(&self) -> (f64, f64) {
+        (
+            (self.oc as f64 - 0.5) / self.inv,
+            (self.or as f64 - 0.5) / self.inv,
+        )
+    }
+
+    /// Cells per metre.
+    pub fn cells_per_m(&self) -> f64 {
+        self.inv
+    }
+
+    /// Side of the window in cells.
+    pub fn side(&self) -> usize {
+        self.n as usize
+    }
+
+    /// Storage index and band of window-relative row and column (both below
+    /// [`CellBinner::side`]), as `u32` and `usize`.
+    #[inline]
+    pub fn storage_of(&self, row: u32, col: u32) -> (u32, usize) {
+        let (i, b) = self.storage(i64::from(row), i64::from(col));
+        (i as u32, b)
+    }
+
+    /// Storage index and band of window-relative row `r` and column `c` (both in `0..n`).
+    #[inline(always)]
+    fn storage(&self, r: i64, c: i64) -> (usize, usize) {
+        let (mut sr, mut sc) = (self.mr + r, self.mc + c);
+        if sr >= self.n {
+            sr -= self.n;
+        }
+        if sc >= self.n {
+            sc -= self.n;
+        }
+        (
+            (sr * self.n + sc) as usize,
+            ((sr as u64).wrapping_mul(self.magic) >> 32) as usize,
+        )
+    }
+}
+
 /// Circular-buffer storage of a square window of cells.
 #[derive(Debug, Clone)]
 pub struct Window<T> {
@@ -107,27 +183,24 @@ impl<T: Clone + Default> Window<T> {
         &self,
         rows_per_band: usize,
     ) -> impl Fn(f64, f64) -> Option<(usize, usize)> + Sync + Send + Copy + 'static {
+        let b = self.binner(rows_per_band);
+        move |x: f64, y: f64| b.locate(x, y)
+    }
+
+    /// The window's current storage layout as plain numbers, for binning many points into
+    /// storage cells and bands of `rows_per_band` storage rows (see [`CellBinner`]).
+    pub fn binner(&self, rows_per_band: usize) -> CellBinner {
         let n = self.size as i64;
         let (or, oc) = self.origin;
-        let (mr, mc) = (or.rem_euclid(n), oc.rem_euclid(n));
-        let inv = 1.0 / self.resolution;
-        // floor(r / d) as a multiply and shift, exact for r < 2^32 / d (r < size here).
         let d = rows_per_band.max(1) as u64;
-        let magic = (1u64 << 32).div_ceil(d);
-        move |x: f64, y: f64| {
-            let r = cell_coord(y, inv) - or;
-            let c = cell_coord(x, inv) - oc;
-            if r < 0 || c < 0 || r >= n || c >= n {
-                return None;
-            }
-            let (mut sr, mut sc) = (mr + r, mc + c);
-            if sr >= n {
-                sr -= n;
-            }
-            if sc >= n {
-                sc -= n;
-            }
-            Some(((sr * n + sc) as usize, ((sr as u64 * magic) >> 32) as usize))
+        CellBinner {
+            inv: 1.0 / self.resolution,
+            or,
+            oc,
+            n,
+            mr: or.rem_euclid(n),
+            mc: oc.rem_euclid(n),
+            magic: (1u64 << 32).div_ceil(d),
         }
     }
 
