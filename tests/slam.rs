@@ -122,8 +122,10 @@ fn free_running_conflicts_with_deterministic() {
     assert!(!tmp.path().join("x").join("report.json").exists());
 }
 
-/// `stride run` killed (SIGKILL) at several moments leaves either nothing (first run), the
-/// previous complete output, or the complete new one: never a mix or half a file.
+/// `stride run --overwrite` killed (SIGKILL) at several moments leaves either nothing
+/// (first run), the previous complete output, or the complete new one: never a mix or half
+/// a file. (`--overwrite`, because on a fast machine a run may finish before its kill, and
+/// the next would then refuse the non-empty folder.)
 #[test]
 fn a_killed_run_leaves_the_previous_or_the_complete_new_output() {
     let Some(seq) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
@@ -138,6 +140,7 @@ fn a_killed_run_leaves_the_previous_or_the_complete_new_output() {
         "--out",
         out.to_str().unwrap(),
         "-q",
+        "--overwrite",
         "--max-frames",
         "120",
     ];
