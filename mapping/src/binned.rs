@@ -433,29 +433,34 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
 }
 
 /// Per-pixel flags of [`FlatRow`].
-const VALID: u8 = 1;
-const INSIDE: u8 = 2;
-const MAYBE_EDGE: u8 = 4;
+const VALID: u32 = 1;
+const INSIDE: u32 = 2;
+const MAYBE_EDGE: u32 = 4;
 
-/// One row of a depth image after the vectorised pass of [`bin_depth_slice`]: per pixel the
-/// height (m), its variance (m²), the window-relative cell row and column, and flags.
+/// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
+/// the ray, the height (m), its variance (m²), the cell, and flags.
 #[derive(Default)]
 struct FlatRow {
     xn: Vec<f32>,
     yn: Vec<f32>,
     z: Vec<f32>,
     var: Vec<f32>,
-    row: Vec<u32>,
-    col: Vec<u32>,
-    flags: Vec<u8>,
+    /// Window-relative cell row and column (fractional) of the point.
+    row: Vec<f32>,
+    col: Vec<f32>,
+    /// Storage index and band of the cell, as floats holding integers (converted in the
+    /// scalar pass: a saturating float-to-int cast stops the vectorisation).
+    cell: Vec<f32>,
+    band: Vec<f32>,
+    flags: Vec<u32>,
 }
 
 /// [`depth_slice`] straight into band lists, in f32: the window's corner is subtracted
 /// from the sensor position once per frame, so map coordinates within the window keep
-/// sub-micrometre precision. Each row goes through one pass without branches (back-
-/// projection, transform, variance, range and edge bounds, cell), which the compiler
-/// vectorises with 4-wide f32 lanes, then a scalar pass scatters the valid points into
-/// their bands. The few pixels near a depth jump get the edge filter's exact test in f64,
+/// sub-micrometre precision. Each row goes through three short passes without branches
+/// (back-projection and transform; variance; range and edge bounds and the cell), which the
+/// compiler vectorises with 4-wide f32 lanes (one long pass it vectorised only 2 wide), then
+/// a scalar pass scatters the valid points into their bands. The few pixels near a depth jump get the edge filter's exact test in f64,
 /// and dropped pixels are classified by the f64 path, so reasons and counts stay those of
 /// [`depth_slice`].
 fn bin_depth_slice<M: HeightModel + ?Sized>(
@@ -467,7 +472,19 @@ fn bin_depth_slice<M: HeightModel + ?Sized>(
     let w = (s.depth.width() as usize).max(1);
     let pl = s.place;
     let (x0, y0) = binner.corner_m();
-    let rot = pl.rot.cast::<f32>();
+    // Row-major entries of the map-from-sensor rotation.
+    let m = pl.rot.cast::<f32>();
+    let [r00, r01, r02, r10, r11, r12, r20, r21, r22] = [
+        m[(0, 0)],
+        m[(0, 1)],
+        m[(0, 2)],
+        m[(1, 0)],
+        m[(1, 1)],
+        m[(1, 2)],
+        m[(2, 0)],
+        m[(2, 1)],
+        m[(2, 2)],
+    ];
     let (tx, ty, tz) = (
         (pl.trans.x - x0) as f32,
         (pl.trans.y - y0) as f32,
@@ -502,25 +519,25 @@ fn bin_depth_slice<M: HeightModel + ?Sized>(
             nearest.clear();
         }
         nearest.resize(drow.len(), f32::INFINITY);
-        r.xn.clear();
-        r.xn.extend(rays.iter().map(|&(x, _)| x as f32));
-        r.yn.clear();
-        r.yn.extend(rays.iter().map(|&(_, y)| y as f32));
-        for buf in [&mut r.z, &mut r.var] {
-            buf.clear();
-            buf.resize(drow.len(), 0.0);
+        // Buffers sized once per slice; every entry up to `n` is written below.
+        let len = drow.len();
+        for buf in [
+            &mut r.xn,
+            &mut r.yn,
+            &mut r.z,
+            &mut r.var,
+            &mut r.row,
+            &mut r.col,
+            &mut r.cell,
+            &mut r.band,
+        ] {
+            buf.resize(len, 0.0);
         }
-        for buf in [&mut r.row, &mut r.col] {
-            buf.clear();
-            buf.resize(drow.len(), 0);
+        r.flags.resize(len, 0);
+        let n = len.min(rays.len()).min(nearest.len());
+        for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
+            (*x, *y) = (rx as f32, ry as f32);
         }
-        r.flags.clear();
-        r.flags.resize(drow.len(), 0);
-        let n = drow
-            .len()
-            .min(r.xn.len())
-            .min(r.yn.len())
-            .min(nearest.len());
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
         let (xs, ys, near) = (&r.xn[..n], &r.yn[..n], &nearest[..n]);
         let (zs, vars, rows, cols, flags) = (
@@ -530,50 +547,70 @@ fn bin_depth_slice<M: HeightModel + ?Sized>(
             &mut r.col[..n],
             &mut r.flags[..n],
         );
+        let (cells, bands) = (&mut r.cell[..n], &mut r.band[..n]);
         let d_row = &drow[..n];
+        // Three loops rather than one: with fewer live values each, the compiler
+        // vectorises them 4 wide instead of 2.
         for i in 0..n {
             let (d, xn, yn) = (d_row[i], xs[i], ys[i]);
             let (px, py) = (xn * d, yn * d);
-            let qx = rot[(0, 0)] * px + rot[(0, 1)] * py + rot[(0, 2)] * d + tx;
-            let qy = rot[(1, 0)] * px + rot[(1, 1)] * py + rot[(1, 2)] * d + ty;
-            let qz = rot[(2, 0)] * px + rot[(2, 1)] * py + rot[(2, 2)] * d + tz;
-            let var = s.model.pixel_variance_f32(&consts, xn, yn, d);
-            let (cf, rf) = (qx * inv_cell, qy * inv_cell);
+            zs[i] = r20 * px + r21 * py + r22 * d + tz;
+            cols[i] = (r00 * px + r01 * py + r02 * d + tx) * inv_cell;
+            rows[i] = (r10 * px + r11 * py + r12 * d + ty) * inv_cell;
+        }
+        for i in 0..n {
+            vars[i] = s.model.pixel_variance_f32(&consts, xs[i], ys[i], d_row[i]);
+        }
+        for i in 0..n {
+            let (d, var) = (d_row[i], vars[i]);
+            let (cf, rf) = (cols[i], rows[i]);
             let valid = (d >= lo) & (d <= hi) & (var > 0.0) & (var < f32::INFINITY);
             let inside = (cf >= 0.0) & (cf < nf) & (rf >= 0.0) & (rf < nf);
             let maybe_edge = d - near[i] > edge_slope * d;
-            zs[i] = qz;
-            vars[i] = var;
-            // Truncation is the floor for the non-negative values inside the window (f32 to
-            // i32 is one packed instruction; to u32 is not).
-            cols[i] = cf as i32 as u32;
-            rows[i] = rf as i32 as u32;
-            flags[i] = u8::from(valid) * VALID
-                + u8::from(inside) * INSIDE
-                + u8::from(maybe_edge) * MAYBE_EDGE;
+            (cells[i], bands[i]) = binner.storage_f32(rf, cf);
+            flags[i] = u32::from(valid) * VALID
+                + u32::from(inside) * INSIDE
+                + u32::from(maybe_edge) * MAYBE_EDGE;
         }
-        for (u, (((&f, &d), &z), &var)) in
-            r.flags.iter().zip(drow).zip(&r.z).zip(&r.var).enumerate()
-        {
-            let near_u = nearest.get(u).copied().unwrap_or(f32::INFINITY);
-            let kept = f & VALID != 0 && (f & MAYBE_EDGE == 0 || !exact_edge(f64::from(d), near_u));
-            if kept && f & INSIDE != 0 {
-                let (Some(&row), Some(&col)) = (r.row.get(u), r.col.get(u)) else {
-                    continue;
-                };
-                let (cell, band) = binner.storage_of(row, col);
-                bin(lists, rej, cell, band, f64::from(z), f64::from(var));
-            } else if kept {
-                rej.outside_window += 1;
-            } else if f & VALID != 0 {
-                rej.depth_edge += 1;
-            } else {
+        let pixels = r
+            .flags
+            .iter()
+            .zip(drow)
+            .zip(r.z.iter().zip(&r.var))
+            .zip(r.cell.iter().zip(&r.band))
+            .zip(&nearest)
+            .take(n);
+        for (u, ((((&f, &d), (&z, &var)), (&cell, &band)), &near)) in pixels.enumerate() {
+            let kept = if f == VALID | INSIDE {
+                // The common case: valid, in the window, away from depth jumps.
+                true
+            } else if f & VALID == 0 {
                 let ray = rays.get(u).copied().unwrap_or((f64::NAN, f64::NAN));
                 rej.count(
                     pl.pixel(s.model, s.camera, u, v, ray, d)
                         .err()
                         .unwrap_or(Reason::BadVariance),
                 );
+                false
+            } else if f & MAYBE_EDGE != 0 && exact_edge(f64::from(d), near) {
+                rej.depth_edge += 1;
+                false
+            } else if f & INSIDE == 0 {
+                rej.outside_window += 1;
+                false
+            } else {
+                true
+            };
+            if !kept {
+                continue;
+            }
+            match lists.get_mut(band as usize) {
+                Some(list) => list.push(CellPoint {
+                    cell: cell as u32,
+                    z_m: z,
+                    var_m2: var.clamp(VAR_MIN_M2, VAR_MAX_M2),
+                }),
+                None => rej.outside_window += 1,
             }
         }
     }

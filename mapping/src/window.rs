@@ -30,6 +30,8 @@ pub struct CellBinner {
     mc: i64,
     /// `floor(r / rows_per_band)` is `(r * magic) >> 32` (exact for `r < 2^32 / rows_per_band`).
     magic: u64,
+    /// `1 / rows_per_band`.
+    inv_rows: f32,
 }
 
 impl CellBinner {
@@ -70,6 +72,20 @@ impl CellBinner {
     pub fn storage_of(&self, row: u32, col: u32) -> (u32, usize) {
         let (i, b) = self.storage(i64::from(row), i64::from(col));
         (i as u32, b)
+    }
+
+    /// [`CellBinner::storage_of`] in f32 arithmetic, for loops the compiler vectorises: for
+    /// window-relative fractional cell coordinates `0 <= row, col < side`, the storage index
+    /// and the band as floats that hold exact integers (a window has at most 4096 x 4096 =
+    /// 2^24 cells; the band is `floor((r + 0.5) / rows_per_band)`, half a row away from any
+    /// rounding). Other inputs give meaningless numbers.
+    #[inline(always)]
+    pub fn storage_f32(&self, row: f32, col: f32) -> (f32, f32) {
+        let n = self.n as f32;
+        let wrap = |x: f32| if x >= n { x - n } else { x };
+        let sr = wrap(row.floor() + self.mr as f32);
+        let sc = wrap(col.floor() + self.mc as f32);
+        (sr * n + sc, ((sr + 0.5) * self.inv_rows).floor())
     }
 
     /// Storage index and band of window-relative row `r` and column `c` (both in `0..n`).
@@ -201,6 +217,7 @@ impl<T: Clone + Default> Window<T> {
             mr: or.rem_euclid(n),
             mc: oc.rem_euclid(n),
             magic: (1u64 << 32).div_ceil(d),
+            inv_rows: 1.0 / d as f32,
         }
     }
 
