@@ -124,6 +124,8 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); mappers.len()];
     let mut phases: Vec<[Vec<f64>; 2]> = vec![[Vec::new(), Vec::new()]; mappers.len()];
     let mut used = vec![0usize; mappers.len()];
+    let mut reference = super::map_reference::ReferencePass::new(400, 0.01);
+    let (mut ref_times, mut ref_used) = (Vec::new(), 0usize);
     for (f, pose) in &frames {
         let sf = SensorFrame::depth(&f.depth_m, &seq.camera.camera, *pose, f.t_depth_s)
             .with_context(|| format!("frame {}", f.index))?;
@@ -140,7 +142,15 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             c.push(s.checks_s);
             *u += s.points_used;
         }
+        let (t, n) = reference.run(&f.depth_m, &seq.camera.camera, pose);
+        ref_times.push(t);
+        ref_used += n;
     }
+    let (ref_med, ref_p95) = stride::pipeline::median_p95(ref_times.iter().copied());
+    out.insert(
+        "reference".into(),
+        json!({"update_ms_median": ref_med * 1e3, "update_ms_p95": ref_p95 * 1e3, "threads": 1, "points_per_s": ref_used as f64 / ref_times.iter().sum::<f64>()}),
+    );
     for (((m, t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
         let total: f64 = t.iter().sum();
         let (med, p95) = stride::pipeline::median_p95(t.iter().copied());
@@ -165,7 +175,7 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             .and_then(|v| v.as_f64())
             .unwrap_or(f64::NAN)
     };
-    for k in ["stack", "fankhauser"] {
+    for k in ["stack", "fankhauser", "reference"] {
         crate::outln!(
             "{k:<11} update {:>7.2} ms median, {:>7.2} ms p95, {:.2e} points/s",
             g(k, "update_ms_median"),
@@ -173,6 +183,14 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             g(k, "points_per_s")
         )?;
     }
+    crate::outln!(
+        "(reference: one plain pass on one thread, each pixel back-projected and kept as its cell's highest point: the practical limit)"
+    )?;
+    crate::outln!(
+        "stack / reference update time: {:.2}; fankhauser / reference: {:.2}",
+        g("stack", "update_ms_median") / g("reference", "update_ms_median"),
+        g("fankhauser", "update_ms_median") / g("reference", "update_ms_median")
+    )?;
     crate::outln!(
         "fankhauser / stack update time: {:.2}",
         g("fankhauser", "update_ms_median") / g("stack", "update_ms_median")

@@ -4,6 +4,7 @@
 mod ba;
 mod eval;
 mod map;
+mod map_reference;
 mod octomap;
 mod slam;
 mod synth;
