@@ -1,27 +1,56 @@
 //! The mappers' input stage: a frame's measurements turned into map-frame heights with
 //! variances and binned by band of window cells, in parallel over fixed slices (so results
-//! never depend on the thread count). Depth images go through [`depth_slice`], a
-//! vectorisable pass over rows of pixels.
+//! never depend on the thread count). Depth images go through the f32 passes of the
+//! `depth_pass` module, vectorised over rows of pixels; [`filtered_map_points`] and
+//! [`to_map_points`] give the same points in f64, one at a time.
 
 use crate::input::{
     Cloud, DepthPixel, EdgeFilter, HeightModel, HeightSample, Placement, RayCache, Rays, Reason,
-    Rejections, SensorFrame, VarianceConsts,
+    Rejections, SensorFrame,
 };
 use crate::window::CellBinner;
 use rayon::prelude::*;
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 
-/// A measurement assigned to a cell of a map window: the cell's storage index, the height
-/// (m, map frame) and its variance (m²).
+/// A measurement assigned to a cell of a map window: the cell's storage index, where in the
+/// cell it lies, the height (m, map frame) and its variance (m²). 12 bytes: the index
+/// (below 2^24, the most cells a window has) shares a word with the position in the cell.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CellPoint {
-    /// Storage index of the cell in the window.
-    pub cell: u32,
+    /// Storage index in the low 24 bits, [`CellPoint::centrality`] times 255 in the high 8.
+    packed: u32,
     /// Height (m, map frame, up).
     pub z_m: f32,
     /// Height variance (m²).
     pub var_m2: f32,
+}
+
+impl CellPoint {
+    /// A measurement of the cell with storage index `cell` (below 2^24), `centrality` in
+    /// [0, 1] (stored to 1/255), height `z_m` (m) and variance `var_m2` (m²).
+    #[inline]
+    pub fn new(cell: u32, centrality: f32, z_m: f32, var_m2: f32) -> Self {
+        let q = (centrality.clamp(0.0, 1.0) * 255.0 + 0.5) as u32;
+        Self {
+            packed: (cell & 0x00ff_ffff) | (q << 24),
+            z_m,
+            var_m2,
+        }
+    }
+
+    /// Storage index of the cell in the window.
+    #[inline]
+    pub fn cell(&self) -> u32 {
+        self.packed & 0x00ff_ffff
+    }
+
+    /// Where in its cell the point lies: `1 - 2 (dx² + dy²)` with `dx, dy` its offsets from
+    /// the cell's centre in cells, so 1 at the centre and 0 at a corner (to 1/255).
+    #[inline]
+    pub fn centrality(&self) -> f32 {
+        (self.packed >> 24) as f32 / 255.0
+    }
 }
 
 /// Smallest height variance handed to a mapper (m²); smaller ones are raised to it.
@@ -62,14 +91,16 @@ impl Binned {
 /// Transforms a frame's measurements into map-frame heights with height variances and
 /// assigns each to its cell: `binner` gives the storage index of the cell containing
 /// map-frame `(x, y)` (m) and its band (below `bands`), or none outside the window (see
-/// [`crate::window::Window::binner`]). Runs in parallel over [`SLICES`] slices of the input;
+/// [`crate::window::Window::binner`]); with `centrality`, each point also records where in
+/// its cell it lies ([`CellPoint::centrality`], else 0: it costs about 0.3 ms per VGA
+/// frame). Runs in parallel over [`SLICES`] slices of the input;
 /// within a band the measurements keep their input order. Invalid measurements are
 /// dropped and counted by reason (including `outside_window`).
 pub fn prepare_binned<M: HeightModel>(
     frame: &SensorFrame<'_>,
     model: &M,
     rays: &mut RayCache,
-    binner: &CellBinner,
+    (binner, centrality): (&CellBinner, bool),
     bands: usize,
     edge: Option<&EdgeFilter>,
     out: &mut Binned,
@@ -93,7 +124,18 @@ pub fn prepare_binned<M: HeightModel>(
                 lists: &mut Vec<Vec<CellPoint>>,
                 rej: &mut Rejections| match res {
         Ok(p) => match binner.locate(p.x, p.y) {
-            Some((cell, band)) => bin(lists, rej, cell as u32, band, p.z, p.var),
+            Some((cell, band)) => bin(
+                lists,
+                rej,
+                (cell as u32, band),
+                p.z,
+                p.var,
+                if centrality {
+                    binner.centrality(p.x, p.y)
+                } else {
+                    0.0
+                },
+            ),
             None => rej.outside_window += 1,
         },
         Err(r) => rej.count(r),
@@ -118,7 +160,11 @@ pub fn prepare_binned<M: HeightModel>(
                         place: &place,
                         model,
                     };
-                    bin_depth_slice(slice, binner, lists, rej);
+                    if centrality {
+                        crate::depth_pass::bin_depth_slice::<M, true>(slice, binner, lists, rej);
+                    } else {
+                        crate::depth_pass::bin_depth_slice::<M, false>(slice, binner, lists, rej);
+                    }
                 });
         }
         Cloud::Points {
@@ -298,6 +344,30 @@ pub(crate) struct DepthSlice<'a, M: ?Sized> {
     pub(crate) model: &'a M,
 }
 
+impl<'a, M: ?Sized> DepthSlice<'a, M> {
+    /// Row `v`'s depths (m; `None` past the image), with its rays in `rays` and, when the
+    /// edge filter is on, each pixel's nearest non-zero depth of its 3 x 3 neighbourhood in
+    /// `nearest` (infinity otherwise), `scratch` being scratch.
+    pub(crate) fn row_inputs(
+        &self,
+        v: usize,
+        rays: &mut Vec<(f64, f64)>,
+        scratch: &mut Vec<f32>,
+        nearest: &mut Vec<f32>,
+    ) -> Option<&'a [f32]> {
+        let w = (self.depth.width() as usize).max(1);
+        let drow = self.depth.as_slice().get(v * w..(v + 1) * w)?;
+        self.rays.row(v, w, rays);
+        if self.edge.is_some() {
+            nearest_neighbour_row(self.depth, v, scratch, nearest);
+        } else {
+            nearest.clear();
+        }
+        nearest.resize(drow.len(), f32::INFINITY);
+        Some(drow)
+    }
+}
+
 /// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
 /// variance (m²) and whether it is a valid measurement.
 #[derive(Debug, Clone, Copy, Default)]
@@ -312,21 +382,22 @@ struct RowPoint {
 /// Puts a valid measurement into its band's list, or counts it as outside the window when
 /// the band does not exist.
 #[inline]
-fn bin(
+pub(crate) fn bin(
     lists: &mut [Vec<CellPoint>],
     rej: &mut Rejections,
-    cell: u32,
-    band: usize,
+    (cell, band): (u32, usize),
     z: f64,
     var: f64,
+    centrality: f32,
 ) {
     match lists.get_mut(band) {
-        Some(list) => list.push(CellPoint {
+        Some(list) => list.push(CellPoint::new(
             cell,
-            z_m: z as f32,
+            centrality,
+            z as f32,
             // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
-            var_m2: (var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
-        }),
+            (var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),
+        )),
         None => rej.outside_window += 1,
     }
 }
@@ -340,7 +411,6 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
     s: DepthSlice<'_, M>,
     mut sink: S,
 ) {
-    let w = (s.depth.width() as usize).max(1);
     let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
     let f_px = s.camera.fx();
     let pl = s.place;
@@ -359,17 +429,10 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
         gap > edge_slope * d && gap > edge_slope * d + edge_k * s.model.depth_sigma_m(d)
     };
     let mut rrow = Vec::new();
-    for v in s.rows {
-        let Some(drow) = s.depth.as_slice().get(v * w..(v + 1) * w) else {
+    for v in s.rows.clone() {
+        let Some(drow) = s.row_inputs(v, &mut rrow, &mut scratch, &mut nearest) else {
             continue;
         };
-        s.rays.row(v, w, &mut rrow);
-        if s.edge.is_some() {
-            nearest_neighbour_row(s.depth, v, &mut scratch, &mut nearest);
-        } else {
-            nearest.clear();
-        }
-        nearest.resize(drow.len(), f32::INFINITY);
         pts.clear();
         pts.extend(drow.iter().zip(&rrow).zip(&nearest).enumerate().map(
             |(u, ((&d, &(xn, yn)), &near))| {
@@ -428,190 +491,6 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                 debug_assert!(is_edge(d, near));
                 Reason::DepthEdge
             }));
-        }
-    }
-}
-
-/// Per-pixel flags of [`FlatRow`].
-const VALID: u32 = 1;
-const INSIDE: u32 = 2;
-const MAYBE_EDGE: u32 = 4;
-
-/// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
-/// the ray, the height (m), its variance (m²), the cell, and flags.
-#[derive(Default)]
-struct FlatRow {
-    xn: Vec<f32>,
-    yn: Vec<f32>,
-    z: Vec<f32>,
-    var: Vec<f32>,
-    /// Window-relative cell row and column (fractional) of the point.
-    row: Vec<f32>,
-    col: Vec<f32>,
-    /// Storage index and band of the cell, as floats holding integers (converted in the
-    /// scalar pass: a saturating float-to-int cast stops the vectorisation).
-    cell: Vec<f32>,
-    band: Vec<f32>,
-    flags: Vec<u32>,
-}
-
-/// [`depth_slice`] straight into band lists, in f32: the window's corner is subtracted
-/// from the sensor position once per frame, so map coordinates within the window keep
-/// sub-micrometre precision. Each row goes through three short passes without branches
-/// (back-projection and transform; variance; range and edge bounds and the cell), which the
-/// compiler vectorises with 4-wide f32 lanes (one long pass it vectorised only 2 wide), then
-/// a scalar pass scatters the valid points into their bands. The few pixels near a depth jump get the edge filter's exact test in f64,
-/// and dropped pixels are classified by the f64 path, so reasons and counts stay those of
-/// [`depth_slice`].
-fn bin_depth_slice<M: HeightModel + ?Sized>(
-    s: DepthSlice<'_, M>,
-    binner: &CellBinner,
-    lists: &mut [Vec<CellPoint>],
-    rej: &mut Rejections,
-) {
-    let w = (s.depth.width() as usize).max(1);
-    let pl = s.place;
-    let (x0, y0) = binner.corner_m();
-    // Row-major entries of the map-from-sensor rotation.
-    let m = pl.rot.cast::<f32>();
-    let [r00, r01, r02, r10, r11, r12, r20, r21, r22] = [
-        m[(0, 0)],
-        m[(0, 1)],
-        m[(0, 2)],
-        m[(1, 0)],
-        m[(1, 1)],
-        m[(1, 2)],
-        m[(2, 0)],
-        m[(2, 1)],
-        m[(2, 2)],
-    ];
-    let (tx, ty, tz) = (
-        (pl.trans.x - x0) as f32,
-        (pl.trans.y - y0) as f32,
-        pl.trans.z as f32,
-    );
-    let (lo, hi) = (pl.range.0 as f32, pl.range.1 as f32);
-    let inv_cell = binner.cells_per_m() as f32;
-    let nf = binner.side() as f32;
-    let consts = VarianceConsts {
-        r3: [pl.r3.x as f32, pl.r3.y as f32, pl.r3.z as f32],
-        inv_fx: (1.0 / s.camera.fx()) as f32,
-        inv_fy: (1.0 / s.camera.fy()) as f32,
-    };
-    let f_px = s.camera.fx();
-    let edge_slope = s
-        .edge
-        .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
-    let exact_edge = |d: f64, near: f32| {
-        s.edge
-            .is_some_and(|e| d - f64::from(near) > e.threshold_m(d, f_px, s.model.depth_sigma_m(d)))
-    };
-    let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
-    let mut r = FlatRow::default();
-    for v in s.rows.clone() {
-        let Some(drow) = s.depth.as_slice().get(v * w..(v + 1) * w) else {
-            continue;
-        };
-        s.rays.row(v, w, &mut rays);
-        if s.edge.is_some() {
-            nearest_neighbour_row(s.depth, v, &mut scratch, &mut nearest);
-        } else {
-            nearest.clear();
-        }
-        nearest.resize(drow.len(), f32::INFINITY);
-        // Buffers sized once per slice; every entry up to `n` is written below.
-        let len = drow.len();
-        for buf in [
-            &mut r.xn,
-            &mut r.yn,
-            &mut r.z,
-            &mut r.var,
-            &mut r.row,
-            &mut r.col,
-            &mut r.cell,
-            &mut r.band,
-        ] {
-            buf.resize(len, 0.0);
-        }
-        r.flags.resize(len, 0);
-        let n = len.min(rays.len()).min(nearest.len());
-        for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
-            (*x, *y) = (rx as f32, ry as f32);
-        }
-        // The vectorised pass: every slice has length `n`, so the bounds checks go.
-        let (xs, ys, near) = (&r.xn[..n], &r.yn[..n], &nearest[..n]);
-        let (zs, vars, rows, cols, flags) = (
-            &mut r.z[..n],
-            &mut r.var[..n],
-            &mut r.row[..n],
-            &mut r.col[..n],
-            &mut r.flags[..n],
-        );
-        let (cells, bands) = (&mut r.cell[..n], &mut r.band[..n]);
-        let d_row = &drow[..n];
-        // Three loops rather than one: with fewer live values each, the compiler
-        // vectorises them 4 wide instead of 2.
-        for i in 0..n {
-            let (d, xn, yn) = (d_row[i], xs[i], ys[i]);
-            let (px, py) = (xn * d, yn * d);
-            zs[i] = r20 * px + r21 * py + r22 * d + tz;
-            cols[i] = (r00 * px + r01 * py + r02 * d + tx) * inv_cell;
-            rows[i] = (r10 * px + r11 * py + r12 * d + ty) * inv_cell;
-        }
-        for i in 0..n {
-            vars[i] = s.model.pixel_variance_f32(&consts, xs[i], ys[i], d_row[i]);
-        }
-        for i in 0..n {
-            let (d, var) = (d_row[i], vars[i]);
-            let (cf, rf) = (cols[i], rows[i]);
-            let valid = (d >= lo) & (d <= hi) & (var > 0.0) & (var < f32::INFINITY);
-            let inside = (cf >= 0.0) & (cf < nf) & (rf >= 0.0) & (rf < nf);
-            let maybe_edge = d - near[i] > edge_slope * d;
-            (cells[i], bands[i]) = binner.storage_f32(rf, cf);
-            flags[i] = u32::from(valid) * VALID
-                + u32::from(inside) * INSIDE
-                + u32::from(maybe_edge) * MAYBE_EDGE;
-        }
-        let pixels = r
-            .flags
-            .iter()
-            .zip(drow)
-            .zip(r.z.iter().zip(&r.var))
-            .zip(r.cell.iter().zip(&r.band))
-            .zip(&nearest)
-            .take(n);
-        for (u, ((((&f, &d), (&z, &var)), (&cell, &band)), &near)) in pixels.enumerate() {
-            let kept = if f == VALID | INSIDE {
-                // The common case: valid, in the window, away from depth jumps.
-                true
-            } else if f & VALID == 0 {
-                let ray = rays.get(u).copied().unwrap_or((f64::NAN, f64::NAN));
-                rej.count(
-                    pl.pixel(s.model, s.camera, u, v, ray, d)
-                        .err()
-                        .unwrap_or(Reason::BadVariance),
-                );
-                false
-            } else if f & MAYBE_EDGE != 0 && exact_edge(f64::from(d), near) {
-                rej.depth_edge += 1;
-                false
-            } else if f & INSIDE == 0 {
-                rej.outside_window += 1;
-                false
-            } else {
-                true
-            };
-            if !kept {
-                continue;
-            }
-            match lists.get_mut(band as usize) {
-                Some(list) => list.push(CellPoint {
-                    cell: cell as u32,
-                    z_m: z,
-                    var_m2: var.clamp(VAR_MIN_M2, VAR_MAX_M2),
-                }),
-                None => rej.outside_window += 1,
-            }
         }
     }
 }

@@ -25,6 +25,9 @@ pub(crate) struct Acc {
     pub(crate) idx: i32,
     pub(crate) sw: f32,
     pub(crate) swh: f32,
+    /// Sum of the measurements' centralities in the cell (see
+    /// [`crate::input::CellPoint::centrality`]).
+    pub(crate) sc: f32,
 }
 
 /// The voxel stack of a column (kept apart from [`Cell`] so that the passes over the
@@ -67,12 +70,20 @@ impl Cell {
     /// accumulator of voxel `idx`. False when the column already has `MAX_ACC` distinct
     /// voxels this frame (the measurement is dropped).
     #[inline]
-    pub(crate) fn accumulate(&mut self, acc: &mut Accs, idx: i32, z_rel: f32, w: f32) -> bool {
+    pub(crate) fn accumulate(
+        &mut self,
+        acc: &mut Accs,
+        idx: i32,
+        z_rel: f32,
+        w: f32,
+        centrality: f32,
+    ) -> bool {
         let n = usize::from(self.n_acc);
         for a in acc.iter_mut().take(n) {
             if a.idx == idx {
                 a.sw += w;
                 a.swh += w * z_rel;
+                a.sc += centrality;
                 return true;
             }
         }
@@ -82,6 +93,7 @@ impl Cell {
                     idx,
                     sw: w,
                     swh: w * z_rel,
+                    sc: centrality,
                 };
                 self.n_acc += 1;
                 true
@@ -101,7 +113,13 @@ impl Cell {
         cfg: &StackConfig,
     ) {
         let mut highest: Option<(f32, f32, i32)> = None;
-        for a in acc.iter().take(usize::from(self.n_acc)) {
+        let accs = acc.iter().take(usize::from(self.n_acc));
+        // The voxels that may feed the cell filter: those with enough of the column's
+        // central support, or else the best supported one.
+        let support: f32 = accs.clone().map(|a| a.sc).sum();
+        let best = accs.clone().map(|a| a.sc).fold(0.0, f32::max);
+        let need = (cfg.step_support_fraction * support).min(best);
+        for a in accs {
             let bottom = a.idx as f32 * voxel_h;
             let (hm, vm) = (bottom + a.swh / a.sw, 1.0 / a.sw);
             let n = usize::from(self.n_voxels);
@@ -137,7 +155,7 @@ impl Cell {
                 v.h -= k * (v.h - hm);
                 v.var *= 1.0 - k;
                 v.last_frame = frame_no;
-                if highest.is_none_or(|(_, _, i)| a.idx > i) {
+                if a.sc >= need && highest.is_none_or(|(_, _, i)| a.idx > i) {
                     highest = Some((v.h, v.var, a.idx));
                 }
             }

@@ -258,7 +258,7 @@ impl ElevationMapper for FankhauserMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            &self.window.binner(size.div_ceil(BANDS)),
+            (&self.window.binner(size.div_ceil(BANDS)), false),
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,
@@ -276,7 +276,7 @@ impl ElevationMapper for FankhauserMapper {
                 let mut used = 0;
                 // Points in input order within each cell, as the original applies them.
                 for p in binned.band(b) {
-                    let Some(c) = cells.get_mut((p.cell as usize).wrapping_sub(lo)) else {
+                    let Some(c) = cells.get_mut((p.cell() as usize).wrapping_sub(lo)) else {
                         continue;
                     };
                     let (z, vp) = (p.z_m, p.var_m2);

@@ -76,15 +76,16 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
         let inv_voxel_h = 1.0 / voxel_h;
         let (mut used, mut overflow, mut touched) = (0, 0, Vec::new());
         for p in self.binned.band(index) {
-            let k = (p.cell as usize).wrapping_sub(first);
+            let k = (p.cell() as usize).wrapping_sub(first);
             let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
                 continue;
             };
             if cell.n_acc == 0 {
-                touched.push(p.cell);
+                touched.push(p.cell());
             }
             let idx_f = (p.z_m * inv_voxel_h).floor();
-            if cell.accumulate(acc, idx_f as i32, p.z_m - idx_f * voxel_h, 1.0 / p.var_m2) {
+            let z_rel = p.z_m - idx_f * voxel_h;
+            if cell.accumulate(acc, idx_f as i32, z_rel, 1.0 / p.var_m2, p.centrality()) {
                 used += 1;
             } else {
                 overflow += 1;

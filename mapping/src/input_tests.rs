@@ -148,47 +148,65 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
             frame,
             model,
             &mut RayCache::default(),
-            binner,
+            (binner, true),
             bands,
             Some(edge),
             &mut binned,
         );
         let (pts, mut want) = filtered_map_points(frame, model, Some(edge));
-        let mut expected: Vec<(u32, usize, f64, f64)> = Vec::new();
+        let mut expected: Vec<(u32, usize, f64, f64, f32)> = Vec::new();
         for p in &pts {
             match binner.locate(p.x, p.y) {
-                Some((cell, band)) => expected.push((cell as u32, band, p.z, p.var)),
+                Some((cell, band)) => {
+                    expected.push((cell as u32, band, p.z, p.var, binner.centrality(p.x, p.y)))
+                }
                 None => want.outside_window += 1,
             }
         }
         assert_eq!(rej, want);
         assert!(want.depth_edge > 0 && want.outside_window > 0 && rej.no_return > 0);
-        let got: Vec<(u32, usize, f32, f32)> = (0..bands)
-            .flat_map(|b| binned.band(b).map(move |c| (c.cell, b, c.z_m, c.var_m2)))
+        let got: Vec<(u32, usize, f32, f32, f32)> = (0..bands)
+            .flat_map(|b| {
+                binned
+                    .band(b)
+                    .map(move |c| (c.cell(), b, c.z_m, c.var_m2, c.centrality()))
+            })
             .collect();
         expected.sort_by_key(|e| (e.1, e.0));
         let mut got_sorted = got.clone();
         got_sorted.sort_by_key(|g| (g.1, g.0));
         assert_eq!(got.len(), expected.len());
         for (g, e) in got_sorted.iter().zip(&expected) {
+            assert!((0.0..=1.0).contains(&g.4), "centrality {}", g.4);
             assert_eq!((g.0, g.1), (e.0, e.1));
         }
-        // Heights and variances per cell, compared as sums (order within a cell may differ).
-        let sum = |v: &mut dyn Iterator<Item = (u32, f64, f64)>| {
+        // Heights, variances and centralities per cell, compared as sums (order within a
+        // cell may differ).
+        let sum = |v: &mut dyn Iterator<Item = (u32, f64, f64, f64)>| {
             let mut m = std::collections::BTreeMap::new();
-            for (c, z, var) in v {
-                let e = m.entry(c).or_insert((0.0, 0.0));
+            for (c, z, var, cen) in v {
+                let e = m.entry(c).or_insert((0.0, 0.0, 0.0, 0.0));
                 e.0 += z;
                 e.1 += var;
+                e.2 += cen;
+                e.3 += 1.0;
             }
             m
         };
-        let a = sum(&mut got.iter().map(|g| (g.0, f64::from(g.2), f64::from(g.3))));
-        let b = sum(&mut expected.iter().map(|e| (e.0, e.2, e.3)));
-        for ((ca, (za, va)), (cb, (zb, vb))) in a.iter().zip(&b) {
+        let a = sum(&mut got
+            .iter()
+            .map(|g| (g.0, f64::from(g.2), f64::from(g.3), f64::from(g.4))));
+        let b = sum(&mut expected.iter().map(|e| (e.0, e.2, e.3, f64::from(e.4))));
+        for ((ca, (za, va, qa, n)), (cb, (zb, vb, qb, _))) in a.iter().zip(&b) {
             assert_eq!(ca, cb);
             assert!((za - zb).abs() < 1e-5, "cell {ca}: heights {za} vs {zb}");
             assert_relative_eq!(*va, *vb, max_relative = 1e-4);
+            // Stored to 1/255.
+            let tol = n / 510.0 + 1e-4;
+            assert!(
+                (qa - qb).abs() <= tol,
+                "cell {ca}: centralities {qa} vs {qb}"
+            );
         }
     }
     check(&PrimeSenseHeight::default(), &frame, &binner, bands, &edge);

@@ -23,6 +23,7 @@
 mod binned;
 mod checks;
 mod column;
+mod depth_pass;
 pub mod error;
 pub mod fankhauser;
 mod fuse;

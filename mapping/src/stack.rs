@@ -65,6 +65,13 @@ pub struct StackConfig {
     pub vitality_decrease: u8,
     /// Vitality threshold above which a column is established (`V_t`).
     pub vitality_threshold: u8,
+    /// Step edges: the cell filter takes the highest voxel measured in a frame among those
+    /// holding at least this fraction of the column's measurements weighted by where they
+    /// land in the cell (1 at the centre, 0 at a corner), or else the best supported one,
+    /// so that a cell straddling a step follows the surface under its centre instead of
+    /// always the top. 0 is paper 000's rule (the highest voxel); 0.5 (the default) takes
+    /// the voxel with most of the support. In [0, 1].
+    pub step_support_fraction: f32,
     /// Run the visibility check.
     pub visibility_check: bool,
     /// Also run the see-through check on depth images (an extension of paper 000): a
@@ -104,6 +111,7 @@ impl Default for StackConfig {
             vitality_increase: 3,
             vitality_decrease: 2,
             vitality_threshold: 7,
+            step_support_fraction: 0.5,
             visibility_check: true,
             visibility_bin_m: 0.01,
             see_through_check: true,
@@ -162,6 +170,13 @@ impl StackConfig {
             self.recenter_threshold_m,
         )?;
         error::positive("voxel_height_m", self.voxel_height_m)?;
+        if !(0.0..=1.0).contains(&self.step_support_fraction) {
+            return Err(MappingError::Parameter {
+                name: "step_support_fraction",
+                value: f64::from(self.step_support_fraction),
+                reason: "must lie within [0, 1]",
+            });
+        }
         error::positive("visibility_bin_m", self.visibility_bin_m)?;
         error::depth_range(self.sensor.min_depth_m, self.sensor.max_depth_m)?;
         if let Some(e) = &self.edge_filter {
@@ -406,7 +421,10 @@ impl ElevationMapper for StackMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            &self.window.binner(size.div_ceil(BANDS)),
+            (
+                &self.window.binner(size.div_ceil(BANDS)),
+                cfg.step_support_fraction > 0.0,
+            ),
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,

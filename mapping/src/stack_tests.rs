@@ -463,3 +463,50 @@ fn a_column_left_behind_resumes_when_the_window_comes_back() {
         "the archive holds only columns outside the window"
     );
 }
+
+/// A cell straddling a step follows the surface under its centre with the default
+/// `step_support_fraction`, and the top of the step with paper 000's highest-voxel rule.
+#[test]
+fn a_cell_straddling_a_step_follows_the_surface_under_its_centre() {
+    // Cells are centred on multiples of 1 cm: the cell at x = 1.00 m covers [0.995, 1.005).
+    // The step (10 cm up) starts at x = 1.003, so that cell's centre lies on the ground and
+    // only a strip at its far edge on the step.
+    let step_x = 1.003;
+    let mut world = Vec::new();
+    for i in 0..300 {
+        for j in 0..100 {
+            let (x, y) = (0.9 + 0.001 * f64::from(i), -0.05 + 0.001 * f64::from(j));
+            world.push(Point3::new(x, y, if x >= step_x { 0.10 } else { 0.0 }));
+        }
+    }
+    let run = |fraction: f32| {
+        let mut m = StackMapper::new(StackConfig {
+            step_support_fraction: fraction,
+            visibility_check: false,
+            median_filter: None,
+            ..config()
+        })
+        .unwrap();
+        for _ in 0..4 {
+            integrate(&mut m, sensor_pose(), &world);
+        }
+        (
+            height_at(&m, 1.0, 0.0).unwrap(),
+            height_at(&m, 0.99, 0.0).unwrap(),
+            height_at(&m, 1.01, 0.0).unwrap(),
+        )
+    };
+    let (straddling, below, above) = run(StackConfig::default().step_support_fraction);
+    assert!(straddling.abs() < 0.01, "straddling cell at {straddling} m");
+    assert!(below.abs() < 0.01 && (above - 0.10).abs() < 0.01);
+    let (highest_rule, _, _) = run(0.0);
+    assert!(
+        (highest_rule - 0.10).abs() < 0.01,
+        "the highest-voxel rule takes the step's top: {highest_rule} m"
+    );
+    assert!(StackMapper::new(StackConfig {
+        step_support_fraction: 1.5,
+        ..config()
+    })
+    .is_err());
+}

@@ -88,6 +88,16 @@ impl CellBinner {
         (sr * n + sc, ((sr + 0.5) * self.inv_rows).floor())
     }
 
+    /// Where map-frame `(x, y)` (m) lies in its cell: [`crate::input::CellPoint::centrality`].
+    pub fn centrality(&self, x: f64, y: f64) -> f32 {
+        let frac = |v: f64| {
+            let c = v * self.inv + 0.5;
+            (c - c.floor() - 0.5) as f32
+        };
+        let (dx, dy) = (frac(x), frac(y));
+        1.0 - 2.0 * (dx * dx + dy * dy)
+    }
+
     /// Storage index and band of window-relative row `r` and column `c` (both in `0..n`).
     #[inline(always)]
     fn storage(&self, r: i64, c: i64) -> (usize, usize) {
