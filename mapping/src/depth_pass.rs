@@ -33,11 +33,12 @@ struct FlatRow {
 
 /// `binned::depth_slice` straight into band lists, in f32: the window's corner is subtracted
 /// from the sensor position once per frame, so map coordinates within the window keep
-/// sub-micrometre precision. Each row goes through three short passes without branches
-/// (back-projection and transform; variance; range and edge bounds and the cell), which the
-/// compiler vectorises with 4-wide f32 lanes (one long pass it vectorised only 2 wide), then
-/// a scalar pass scatters the valid points into their bands. The few pixels near a depth jump get the edge filter's exact test in f64,
-/// and dropped pixels are classified by the f64 path, so reasons and counts stay those of
+/// sub-micrometre precision. Each row goes through short passes without branches
+/// (back-projection and transform; variance; range and edge bounds and the cell; the place
+/// in the cell), which the compiler vectorises with 4-wide f32 lanes (one long pass it
+/// vectorised only 2 wide), then a scalar pass scatters the valid points into their bands.
+/// The few pixels near a depth jump get the edge filter's exact test in f64, and dropped
+/// pixels are classified by the f64 path, so reasons and counts stay those of
 /// `binned::depth_slice`.
 ///
 /// `CENTRALITY` (a constant, so that a mapper that does not use it pays nothing): whether
@@ -121,7 +122,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         );
         let (cells, bands, cens) = (&mut r.cell[..n], &mut r.band[..n], &mut r.centrality[..n]);
         let d_row = &drow[..n];
-        // Three loops rather than one: with fewer live values each, the compiler
+        // Short loops rather than one: with fewer live values each, the compiler
         // vectorises them 4 wide instead of 2.
         for i in 0..n {
             let (d, xn, yn) = (d_row[i], xs[i], ys[i]);

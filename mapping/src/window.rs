@@ -66,19 +66,12 @@ impl CellBinner {
         self.n as usize
     }
 
-    /// Storage index and band of window-relative row and column (both below
-    /// [`CellBinner::side`]), as `u32` and `usize`.
-    #[inline]
-    pub fn storage_of(&self, row: u32, col: u32) -> (u32, usize) {
-        let (i, b) = self.storage(i64::from(row), i64::from(col));
-        (i as u32, b)
-    }
-
-    /// [`CellBinner::storage_of`] in f32 arithmetic, for loops the compiler vectorises: for
-    /// window-relative fractional cell coordinates `0 <= row, col < side`, the storage index
-    /// and the band as floats that hold exact integers (a window has at most 4096 x 4096 =
-    /// 2^24 cells; the band is `floor((r + 0.5) / rows_per_band)`, half a row away from any
-    /// rounding). Other inputs give meaningless numbers.
+    /// [`CellBinner::locate`]'s storage index and band in f32 arithmetic, for loops the
+    /// compiler vectorises: for window-relative fractional cell coordinates
+    /// `0 <= row, col < side`, the storage index and the band as floats that hold exact
+    /// integers (a window has at most 4096 x 4096 = 2^24 cells; the band is
+    /// `floor((r + 0.5) / rows_per_band)`, half a row away from any rounding). Other inputs
+    /// give meaningless numbers.
     #[inline(always)]
     pub fn storage_f32(&self, row: f32, col: f32) -> (f32, f32) {
         let n = self.n as f32;
