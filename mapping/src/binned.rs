@@ -382,7 +382,7 @@ struct RowPoint {
 /// Puts a valid measurement into its band's list, or counts it as outside the window when
 /// the band does not exist.
 #[inline]
-pub(crate) fn bin(
+fn bin(
     lists: &mut [Vec<CellPoint>],
     rej: &mut Rejections,
     (cell, band): (u32, usize),
