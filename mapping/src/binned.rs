@@ -366,6 +366,23 @@ impl<'a, M: ?Sized> DepthSlice<'a, M> {
         nearest.resize(drow.len(), f32::INFINITY);
         Some(drow)
     }
+
+    /// The edge filter's test: true when depth `d` (m) lies farther than
+    /// [`EdgeFilter::threshold_m`] beyond `near`, its nearest neighbour (never without a
+    /// filter).
+    #[inline]
+    pub(crate) fn is_edge(&self, d: f64, near: f32) -> bool
+    where
+        M: HeightModel,
+    {
+        let f_px = self.camera.fx();
+        self.edge.is_some_and(|e| {
+            // The cheap bound first: the noise term is only needed near a jump.
+            let gap = d - f64::from(near);
+            gap > e.threshold_m(d, f_px, 0.0)
+                && gap > e.threshold_m(d, f_px, self.model.depth_sigma_m(d))
+        })
+    }
 }
 
 /// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
@@ -412,22 +429,11 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
     mut sink: S,
 ) {
     let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
-    let f_px = s.camera.fx();
     let pl = s.place;
     let (lo, hi) = pl.range;
     let rot = pl.rot;
     let t = pl.trans;
-    // The edge threshold of `EdgeFilter::threshold_m`, written out so that it vectorises
-    // (no filter: an infinite threshold).
-    let edge_slope = s
-        .edge
-        .map_or(f64::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0));
-    let edge_k = s.edge.map_or(0.0, |e| e.sigmas * std::f64::consts::SQRT_2);
-    let is_edge = |d: f64, near: f32| {
-        let gap = d - f64::from(near);
-        // The cheap bound first: the noise term is only needed near a jump.
-        gap > edge_slope * d && gap > edge_slope * d + edge_k * s.model.depth_sigma_m(d)
-    };
+    let is_edge = |d: f64, near: f32| s.is_edge(d, near);
     let mut rrow = Vec::new();
     for v in s.rows.clone() {
         let Some(drow) = s.row_inputs(v, &mut rrow, &mut scratch, &mut nearest) else {

@@ -4,7 +4,7 @@
 
 use crate::binned::{CellPoint, DepthSlice, VAR_MAX_M2, VAR_MIN_M2};
 use crate::input::{HeightModel, Reason, Rejections, VarianceConsts};
-use crate::window::CellBinner;
+use crate::window::{centrality, CellBinner};
 
 /// Per-pixel flags of [`FlatRow`].
 const VALID: u32 = 1;
@@ -81,10 +81,6 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     let edge_slope = s
         .edge
         .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
-    let exact_edge = |d: f64, near: f32| {
-        s.edge
-            .is_some_and(|e| d - f64::from(near) > e.threshold_m(d, f_px, s.model.depth_sigma_m(d)))
-    };
     let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
     let mut r = FlatRow::default();
     for v in s.rows.clone() {
@@ -147,9 +143,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         }
         if CENTRALITY {
             for i in 0..n {
-                let (rf, cf) = (rows[i], cols[i]);
-                let (dx, dy) = (cf - cf.floor() - 0.5, rf - rf.floor() - 0.5);
-                cens[i] = 1.0 - 2.0 * (dx * dx + dy * dy);
+                cens[i] = centrality(cols[i], rows[i]);
             }
         }
         let pixels = r
@@ -174,7 +168,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                         .unwrap_or(Reason::BadVariance),
                 );
                 false
-            } else if f & MAYBE_EDGE != 0 && exact_edge(f64::from(d), near) {
+            } else if f & MAYBE_EDGE != 0 && s.is_edge(f64::from(d), near) {
                 rej.depth_edge += 1;
                 false
             } else if f & INSIDE == 0 {

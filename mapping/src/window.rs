@@ -83,12 +83,12 @@ impl CellBinner {
 
     /// Where map-frame `(x, y)` (m) lies in its cell: [`crate::input::CellPoint::centrality`].
     pub fn centrality(&self, x: f64, y: f64) -> f32 {
+        // The fraction in f64 (world coordinates can be large), the formula in f32.
         let frac = |v: f64| {
             let c = v * self.inv + 0.5;
-            (c - c.floor() - 0.5) as f32
+            (c - c.floor()) as f32
         };
-        let (dx, dy) = (frac(x), frac(y));
-        1.0 - 2.0 * (dx * dx + dy * dy)
+        centrality(frac(x), frac(y))
     }
 
     /// Storage index and band of window-relative row `r` and column `c` (both in `0..n`).
@@ -106,6 +106,15 @@ impl CellBinner {
             ((sr as u64).wrapping_mul(self.magic) >> 32) as usize,
         )
     }
+}
+
+/// [`crate::input::CellPoint::centrality`] of a point at fractional cell coordinates
+/// `(col, row)`, where cell `k` spans `[k, k + 1)`: `1 - 2 (dx² + dy²)` with `dx, dy` the
+/// offsets from the cell's centre.
+#[inline(always)]
+pub(crate) fn centrality(col: f32, row: f32) -> f32 {
+    let (dx, dy) = (col - col.floor() - 0.5, row - row.floor() - 0.5);
+    1.0 - 2.0 * (dx * dx + dy * dy)
 }
 
 /// Circular-buffer storage of a square window of cells.
