@@ -41,6 +41,19 @@ pub enum DatasetError {
         /// What is wrong with it.
         message: String,
     },
+    /// A message of an MCAP log cannot be used (an odd encoding, a truncated message, an
+    /// image of the wrong size).
+    #[error("{}: topic {topic}, message {index}: {message}", path.display())]
+    Message {
+        /// The MCAP file.
+        path: PathBuf,
+        /// The message's topic.
+        topic: String,
+        /// Zero-based index of the message among its topic's messages.
+        index: usize,
+        /// What is wrong with it.
+        message: String,
+    },
 }
 
 impl DatasetError {
@@ -58,6 +71,32 @@ impl DatasetError {
             path: path.into(),
             line,
             message: message.into(),
+        }
+    }
+
+    /// An error about message `index` of `topic` in the MCAP file `path`.
+    pub fn message(
+        path: impl Into<PathBuf>,
+        topic: &str,
+        index: usize,
+        message: impl Into<String>,
+    ) -> Self {
+        Self::Message {
+            path: path.into(),
+            topic: topic.to_owned(),
+            index,
+            message: message.into(),
+        }
+    }
+
+    /// What went wrong, without the file it concerns (for errors re-worded elsewhere).
+    pub fn detail(&self) -> String {
+        match self {
+            Self::Io { error, .. } => error.to_string(),
+            Self::Parse { line, message, .. } => format!("line {line}: {message}"),
+            Self::Invalid { message, .. }
+            | Self::Image { message, .. }
+            | Self::Message { message, .. } => message.clone(),
         }
     }
 

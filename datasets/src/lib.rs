@@ -9,6 +9,9 @@
 //! * [`tum`]: TUM RGB-D sequence folders (`rgb.txt`, `depth.txt`, `groundtruth.txt`),
 //!   rgb/depth association as TUM's `associate.py`, and a frame iterator that decodes PNGs
 //!   ahead on a background thread.
+//! * [`mcap`]: MCAP logs (ROS 2 CDR messages) as RGB-D sequences, and TUM folders converted
+//!   to and from them.
+//! * [`sequence`]: either source as one [`sequence::Sequence`].
 //! * [`png_io`]: PNG decoding and encoding for colour and 16-bit depth images.
 //! * [`grid_file`]: the grid format (`.npy` float32 layers + a JSON header) shared by the
 //!   synthetic ground truth and the elevation mapper.
@@ -18,8 +21,10 @@ pub mod accelerometer;
 pub mod camera_config;
 pub mod error;
 pub mod grid_file;
+pub mod mcap;
 pub mod orbslam_settings;
 pub mod png_io;
+pub mod sequence;
 pub mod stream;
 pub mod synth;
 pub mod text;

@@ -134,6 +134,12 @@ pub fn decode_depth(
     path: &Path,
     depth_scale: f64,
 ) -> Result<DepthImage, DatasetError> {
+    Ok(depth_from_raw(&decode_depth_raw(bytes, path)?, depth_scale))
+}
+
+/// Decodes a 16-bit single-channel depth PNG to its raw units (as stored, 0 = no
+/// measurement). Any other PNG format is an error naming the file.
+pub fn decode_depth_raw(bytes: &[u8], path: &Path) -> Result<Image<u16>, DatasetError> {
     if !bytes.starts_with(PNG_MAGIC) {
         return Err(image_err(
             path,
@@ -151,13 +157,18 @@ pub fn decode_depth(
             ),
         ));
     }
-    let inv = 1.0 / depth_scale;
-    let px: Vec<f32> = raw
+    let px: Vec<u16> = raw
         .bytes
         .chunks_exact(2)
-        .map(|c| (f64::from(u16::from_be_bytes([c[0], c[1]])) * inv) as f32)
+        .map(|c| u16::from_be_bytes([c[0], c[1]]))
         .collect();
     Image::from_vec(raw.width, raw.height, px).map_err(|e| image_err(path, e.to_string()))
+}
+
+/// Raw depth units to metres: `raw / units_per_m`, 0 stays 0.
+pub fn depth_from_raw(raw: &Image<u16>, units_per_m: f64) -> DepthImage {
+    let inv = 1.0 / units_per_m;
+    raw.map(|v| (f64::from(v) * inv) as f32)
 }
 
 /// Reads and decodes a depth PNG file; see [`decode_depth`].
