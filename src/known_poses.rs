@@ -6,8 +6,8 @@
 use crate::PipelineError;
 use stride_core::grid::Grid;
 use stride_core::trajectory::Trajectory;
+use stride_datasets::sequence::Sequence;
 use stride_datasets::stream::StreamError;
-use stride_datasets::tum::TumSequence;
 use stride_mapping::input::{Rejections, SensorFrame};
 use stride_mapping::metrics::{
     compare, compare_over_seen, floor_fit, phantoms, FloorFit, MapScore, PhantomScore, SeenScore,
@@ -76,7 +76,7 @@ pub struct FrameCounts {
 /// Maps a sequence with the given poses into each mapper; returns per-mapper runs, each
 /// map as its mapper finishes it (the stack map's median fill per its configuration).
 pub fn map_sequence(
-    seq: &TumSequence,
+    seq: &Sequence,
     poses: &Trajectory,
     mut mappers: Vec<Box<dyn ElevationMapper>>,
     max_frames: Option<usize>,
@@ -107,7 +107,7 @@ pub fn map_sequence(
             continue;
         };
         counts.mapped += 1;
-        let sf = SensorFrame::depth(&frame.depth_m, &seq.camera.camera, pose, frame.t_depth_s)?;
+        let sf = SensorFrame::depth(&frame.depth_m, &seq.camera().camera, pose, frame.t_depth_s)?;
         for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
             let u = m.integrate(&sf);
             s.0.push(u.update_s);
@@ -161,16 +161,31 @@ pub fn map_sequence(
 /// depth image's time, as [`crate::Pipeline`] maps its views. Returns the map and the
 /// number of frames outside the poses' time span (left out).
 pub fn views_map(
-    seq: &TumSequence,
+    seq: &Sequence,
     frames: &[usize],
     poses: &Trajectory,
     config: crate::pipeline::terrain::TerrainConfig,
 ) -> Result<(MapLayers, usize), PipelineError> {
-    let mut terrain = crate::pipeline::terrain::Terrain::new(&seq.camera.camera, config)?;
+    let mut terrain = crate::pipeline::terrain::Terrain::new(&seq.camera().camera, config)?;
     terrain.set_world(nalgebra::Isometry3::identity());
     let mut outside = 0;
-    for (position, &index) in frames.iter().enumerate() {
-        let frame = seq.load_frame(index)?;
+    let wanted: std::collections::BTreeMap<usize, usize> = frames
+        .iter()
+        .enumerate()
+        .map(|(position, &index)| (index, position))
+        .collect();
+    let end = frames.iter().max().map_or(0, |&m| m + 1);
+    // One pass over the sequence (an MCAP log is read in order, not by index).
+    for item in seq.stream(Some(end), 4) {
+        let frame = match item {
+            Ok(d) => d.frame,
+            Err(StreamError::Frame(f)) if !wanted.contains_key(&f.index) => continue,
+            Err(StreamError::Frame(f)) => return Err(f.error.into()),
+            Err(StreamError::Stopped(e)) => return Err(e.into()),
+        };
+        let Some(&position) = wanted.get(&frame.index) else {
+            continue;
+        };
         let Some(pose) = poses.interpolate(frame.t_depth_s) else {
             outside += 1;
             continue;

@@ -5,7 +5,8 @@
 //! shows as a case over `SLOW_S`).
 //!
 //! Parsers: TUM trajectories, image lists, camera files (JSON, TOML, YAML, ORB-SLAM
-//! settings), colour images (PNG, JPEG), depth PNGs, `.npy` layers and grid headers.
+//! settings), colour images (PNG, JPEG), depth PNGs, `.npy` layers and grid headers, ROS 2
+//! CDR messages and MCAP logs.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
 
@@ -18,6 +19,12 @@ use stride_core::image::Image;
 use stride_core::rng::SplitMix64;
 use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::grid_file::{decode_npy_f32, encode_npy_f32, parse_grid_header};
+use stride_datasets::mcap::images::{depth_image, rgb_image, ImagePayload};
+use stride_datasets::mcap::ros2::{
+    CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, LaserScanMsg, Ros2Type, TfMessage,
+    Time, TransformStamped,
+};
+use stride_datasets::mcap::{McapSequence, McapTopics};
 use stride_datasets::orbslam_settings;
 use stride_datasets::png_io::{
     decode_depth, decode_rgb, encode_depth_u16, encode_gray, encode_rgb,
@@ -229,4 +236,121 @@ fn images_npy_and_grid_headers() {
     fuzz("grid_header", &[header.to_vec()], |b| {
         parse_grid_header(&text(b), Path::new("grid.json")).is_ok()
     });
+}
+
+#[test]
+fn ros2_messages_and_mcap_logs() {
+    let header = Header {
+        stamp: Time { sec: 3, nanosec: 7 },
+        frame_id: "cam".into(),
+    };
+    let px: Vec<u8> = (0..4 * 3 * 4).map(|i| i as u8).collect();
+    let image = |encoding: &str, step: u32| {
+        ImageMsg {
+            header: header.clone(),
+            height: 3,
+            width: 4,
+            encoding: encoding.into(),
+            is_bigendian: 0,
+            step,
+            data: &px,
+        }
+        .encode()
+    };
+    let png = encode_depth_u16(&Image::from_vec(4, 3, (0..12u16).collect()).unwrap()).unwrap();
+    let seeds = vec![
+        image("rgb8", 12),
+        image("16UC1", 8),
+        image("32FC1", 16),
+        CompressedImageMsg {
+            header: header.clone(),
+            format: "png".into(),
+            data: &png,
+        }
+        .encode(),
+        TfMessage {
+            transforms: vec![TransformStamped {
+                header: header.clone(),
+                child_frame_id: "gt".into(),
+                translation: [1.0, 2.0, 3.0],
+                rotation: [0.0, 0.0, 0.0, 1.0],
+            }],
+        }
+        .encode(),
+        LaserScanMsg {
+            header: header.clone(),
+            angle_min: -1.0,
+            angle_max: 1.0,
+            angle_increment: 0.5,
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.1,
+            range_max: 4.0,
+            ranges: vec![1.0, 2.0, 3.0, 4.0, 5.0],
+            intensities: vec![],
+        }
+        .encode(),
+    ];
+    fuzz("ros2_messages", &seeds, |b| {
+        let mut ok = false;
+        if let Ok(m) = ImageMsg::decode(b) {
+            let p = ImagePayload::Raw(m);
+            ok |= rgb_image(&p).is_ok() | depth_image(&p, 1000.0).is_ok();
+        }
+        if let Ok(m) = CompressedImageMsg::decode(b) {
+            let p = ImagePayload::Compressed(m);
+            ok |= rgb_image(&p).is_ok() | depth_image(&p, 1000.0).is_ok();
+        }
+        ok |= CameraInfoMsg::decode(b).is_ok();
+        ok |= ImuMsg::decode(b).is_ok();
+        ok |= LaserScanMsg::decode(b).is_ok();
+        ok |= TfMessage::decode(b).is_ok();
+        ok
+    });
+    // A small log (one raw colour and one depth image, a transform), whole and mutated,
+    // opened and streamed from a file.
+    let mut log = std::io::Cursor::new(Vec::new());
+    {
+        let mut w = mcap::Writer::new(&mut log).unwrap();
+        let mut channel = |ty: Ros2Type, topic: &str| {
+            let s = w
+                .add_schema(ty.name(), "ros2msg", ty.schema_text().as_bytes())
+                .unwrap();
+            w.add_channel(s, topic, "cdr", &Default::default()).unwrap()
+        };
+        let (rgb, depth, tf) = (
+            channel(Ros2Type::Image, "/camera/rgb/image_color"),
+            channel(Ros2Type::Image, "/camera/depth/image"),
+            channel(Ros2Type::TfMessage, "/tf"),
+        );
+        for (ch, data) in [(rgb, &seeds[0]), (depth, &seeds[1]), (tf, &seeds[4])] {
+            let h = mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: 1,
+                log_time: 3_000_000_007,
+                publish_time: 3_000_000_007,
+            };
+            w.write_to_known_channel(&h, data).unwrap();
+        }
+        w.finish().unwrap();
+    }
+    let camera = std::env::temp_dir().join(format!("stride-fuzz-cam-{}.json", std::process::id()));
+    std::fs::write(
+        &camera,
+        r#"{"fx": 5, "fy": 5, "cx": 2, "cy": 1.5, "width": 4, "height": 3, "depth_scale": 1000}"#,
+    )
+    .unwrap();
+    let file = std::env::temp_dir().join(format!("stride-fuzz-{}.mcap", std::process::id()));
+    let accepted = fuzz("mcap_log", &[log.into_inner()], |b| {
+        std::fs::write(&file, b).unwrap();
+        let topics = McapTopics::default();
+        let options = stride_datasets::tum::AssociationOptions::default();
+        match McapSequence::open(&file, &topics, camera.to_str(), options) {
+            Ok(seq) => seq.stream(None, 1).all(|f| f.is_ok()),
+            Err(_) => false,
+        }
+    });
+    assert!(accepted > 0, "not even the unmutated log was read");
+    std::fs::remove_file(&file).unwrap();
+    std::fs::remove_file(&camera).unwrap();
 }

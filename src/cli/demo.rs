@@ -19,6 +19,7 @@ use stride::run_sequence;
 use stride_core::grid::Grid;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::read_grid;
+use stride_datasets::sequence::Sequence;
 use stride_datasets::synth::SynthConfig;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
@@ -114,6 +115,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let dir = staged.path();
     let (synth_config, synth, blur) = render_sequence(&a, dir)?;
     let seq = TumSequence::open(&dir.join("sequence"), None, AssociationOptions::default())
+        .map(Sequence::Tum)
         .context("opening the rendered sequence")?;
     let truth = read_grid(&dir.join("sequence/terrain.npy"), None)?;
     let args = run_args(&a, dir);
@@ -214,6 +216,7 @@ fn render_sequence(
 fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
     RunArgs {
         dataset: dir.join("sequence"),
+        topics: super::run::TopicArgs::default(),
         camera: None,
         out: dir.join("slam"),
         overwrite: false,
@@ -236,7 +239,7 @@ fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
 
 /// Stage 2, the pipeline: the SLAM and the elevation map on its poses, written as `stride
 /// run` writes it.
-fn run_pipeline(args: &RunArgs, config: &Config, seq: &TumSequence) -> Result<RunSummary> {
+fn run_pipeline(args: &RunArgs, config: &Config, seq: &Sequence) -> Result<RunSummary> {
     tracing::info!("pipeline: SLAM and elevation map");
     stride_frontend::set_opencv_threads(1)?;
     let pb = crate::cli::progress_bar(seq.len(), "pipeline", true);

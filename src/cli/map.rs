@@ -11,7 +11,6 @@ use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
 use stride_datasets::trajectory_file::read_tum_trajectory;
-use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
 use stride_mapping::metrics::performance_index;
@@ -42,9 +41,12 @@ const SEEN_TOLERANCE_M: f64 = 0.03;
 
 #[derive(Debug, Args)]
 pub struct MapArgs {
-    /// Sequence folder (TUM layout).
+    /// Sequence folder (TUM layout), or an MCAP log (a file ending in .mcap).
     #[arg(long)]
     pub dataset: PathBuf,
+    /// Topics of an MCAP --dataset.
+    #[command(flatten)]
+    pub topics: super::run::TopicArgs,
     /// Poses: `groundtruth` (the folder's groundtruth.txt) or a TUM trajectory file; each is
     /// `world_from_camera` with the world's z axis up.
     #[arg(long, default_value = "groundtruth")]
@@ -320,16 +322,11 @@ pub fn run(a: MapArgs) -> Result<()> {
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let stack = stack_config(a)?;
-    let seq = TumSequence::open(
-        &a.dataset,
-        a.camera.as_deref(),
-        AssociationOptions::default(),
-    )
-    .context("opening the dataset")?;
+    let seq = a.topics.open(&a.dataset, a.camera.as_deref())?;
     let poses = if a.poses == "groundtruth" {
-        seq.groundtruth.clone().with_context(|| {
+        seq.groundtruth().cloned().with_context(|| {
             format!(
-                "{} has no groundtruth.txt; pass --poses FILE",
+                "{} has no ground truth; pass --poses FILE",
                 a.dataset.display()
             )
         })?
@@ -372,7 +369,7 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
             (Some(a), Some(b)) => format!("{a:.3} to {b:.3} s"),
             _ => "empty".to_owned(),
         };
-        let images: Vec<f64> = seq.frames.iter().map(|f| f.t_depth_s).collect();
+        let images: Vec<f64> = seq.depth_times_s();
         anyhow::bail!(
             "no frame could be mapped, nothing written: of {} frames, {} lie outside the poses' \
              time span and {} could not be read (poses {}: {}; depth images: {})",

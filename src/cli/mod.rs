@@ -2,6 +2,7 @@
 
 mod bench;
 mod config;
+mod convert;
 mod demo;
 mod eval;
 mod eval_ci;
@@ -44,6 +45,10 @@ enum Command {
     Synth(synth::SynthArgs),
     /// The whole pipeline on the embedded synthetic sequence: render, track, map, report.
     Demo(demo::DemoArgs),
+    /// Convert a TUM folder to an MCAP log of ROS 2 messages, or an MCAP log to a TUM folder.
+    Convert(convert::ConvertArgs),
+    /// List what an MCAP log holds: topics, schemas, message counts, rates, transforms.
+    Info(convert::InfoArgs),
     /// The configuration file of every stage: print the documented defaults, or check a file.
     Config(config::ConfigArgs),
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
@@ -124,5 +129,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Map(a) => map::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Config(a) => config::run(a),
+        Command::Convert(a) => convert::run(a),
+        Command::Info(a) => convert::info(a),
     }
 }

@@ -12,14 +12,20 @@ use stride::config::Config;
 use stride::pipeline::run_sequence;
 use stride::pipeline::world::WorldPlan;
 use stride_backend::{BackendConfig, BackendMode, SavedMap};
-use stride_datasets::tum::{AssociationOptions, TumSequence};
+use stride_datasets::mcap::McapTopics;
+use stride_datasets::sequence::Sequence;
+use stride_datasets::tum::AssociationOptions;
 use stride_frontend::VoConfig;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Sequence folder in TUM layout (rgb.txt, depth.txt, optional groundtruth.txt).
+    /// Sequence folder in TUM layout (rgb.txt, depth.txt, optional groundtruth.txt), or an
+    /// MCAP log of ROS 2 messages (a file ending in .mcap; topics below).
     #[arg(long)]
     pub dataset: PathBuf,
+    /// Topics of an MCAP --dataset.
+    #[command(flatten)]
+    pub topics: TopicArgs,
     /// Camera: fr1, fr2, fr3 or a camera file [default: the folder's camera.json, else the
     /// TUM camera its name implies].
     #[arg(long)]
@@ -94,6 +100,82 @@ pub struct RunArgs {
     pub load_map: Option<PathBuf>,
 }
 
+/// The topics of an MCAP log (`stride info FILE.mcap` lists them).
+#[derive(Debug, Args, Clone)]
+pub struct TopicArgs {
+    /// Colour images (sensor_msgs/Image or CompressedImage) of an MCAP --dataset.
+    #[arg(long, value_name = "TOPIC", default_value = stride_datasets::mcap::DEFAULT_RGB_TOPIC)]
+    pub rgb_topic: String,
+    /// Depth images registered to the colour camera (16UC1, 32FC1 or 16-bit PNG).
+    #[arg(long, value_name = "TOPIC", default_value = stride_datasets::mcap::DEFAULT_DEPTH_TOPIC)]
+    pub depth_topic: String,
+    /// The colour camera's sensor_msgs/CameraInfo [default: /camera/rgb/camera_info when
+    /// present; --camera wins over it].
+    #[arg(long, value_name = "TOPIC")]
+    pub camera_info_topic: Option<String>,
+    /// A sensor_msgs/Imu whose linear acceleration is in the colour camera's optical frame,
+    /// for the gravity-aligned world [default: /imu when it is in the images' frame].
+    #[arg(long, value_name = "TOPIC")]
+    pub imu_topic: Option<String>,
+    /// Ground truth: transforms from PARENT to CHILD (world_from_camera) on any
+    /// tf2_msgs/TFMessage topic [default: world:groundtruth when present].
+    #[arg(long, value_name = "PARENT:CHILD")]
+    pub gt_tf: Option<String>,
+    /// Units per metre of 16-bit depth [default: the depth channel's depth_units_per_m
+    /// metadata, else 1000 (REP 118: millimetres)].
+    #[arg(long, value_name = "UNITS")]
+    pub depth_units_per_m: Option<f64>,
+}
+
+impl Default for TopicArgs {
+    /// The defaults of the flags: the topics `stride convert` writes.
+    fn default() -> Self {
+        Self {
+            rgb_topic: stride_datasets::mcap::DEFAULT_RGB_TOPIC.into(),
+            depth_topic: stride_datasets::mcap::DEFAULT_DEPTH_TOPIC.into(),
+            camera_info_topic: None,
+            imu_topic: None,
+            gt_tf: None,
+            depth_units_per_m: None,
+        }
+    }
+}
+
+impl TopicArgs {
+    /// The topics as the datasets crate takes them.
+    pub fn topics(&self) -> Result<McapTopics> {
+        let groundtruth_tf = match &self.gt_tf {
+            None => None,
+            Some(s) => {
+                let (p, c) = s
+                    .split_once(':')
+                    .filter(|(p, c)| !p.is_empty() && !c.is_empty())
+                    .with_context(|| format!("--gt-tf {s}: expected PARENT:CHILD"))?;
+                Some((p.to_owned(), c.to_owned()))
+            }
+        };
+        Ok(McapTopics {
+            rgb: self.rgb_topic.clone(),
+            depth: self.depth_topic.clone(),
+            camera_info: self.camera_info_topic.clone(),
+            imu: self.imu_topic.clone(),
+            groundtruth_tf,
+            depth_units_per_m: self.depth_units_per_m,
+        })
+    }
+
+    /// Opens `dataset` (a TUM folder or an MCAP log) with these topics.
+    pub fn open(&self, dataset: &std::path::Path, camera: Option<&str>) -> Result<Sequence> {
+        Sequence::open(
+            dataset,
+            camera,
+            AssociationOptions::default(),
+            &self.topics()?,
+        )
+        .context("opening the dataset")
+    }
+}
+
 /// The back end to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum BackendArg {
@@ -119,11 +201,11 @@ impl BackendArg {
 impl RunArgs {
     /// How the run finds its gravity-aligned world frame: the ground truth when asked, the
     /// given mounting, else the accelerometer when the folder has one, else the floor.
-    pub fn world_plan(&self, seq: &TumSequence) -> Result<WorldPlan> {
+    pub fn world_plan(&self, seq: &Sequence) -> Result<WorldPlan> {
         if self.world_from_groundtruth {
-            let gt = seq.groundtruth.as_ref().with_context(|| {
+            let gt = seq.groundtruth().with_context(|| {
                 format!(
-                    "--world-from-groundtruth: {} has no groundtruth.txt",
+                    "--world-from-groundtruth: {} has no ground truth",
                     self.dataset.display()
                 )
             })?;
@@ -142,9 +224,9 @@ impl RunArgs {
                     height_m,
                 })
             }
-            _ => Ok(match &seq.accelerometer {
+            _ => Ok(match seq.accelerometer() {
                 Some(samples) if !self.ignore_accelerometer => {
-                    WorldPlan::Accelerometer(samples.clone())
+                    WorldPlan::Accelerometer(samples.to_vec())
                 }
                 _ => WorldPlan::Floor,
             }),
@@ -238,17 +320,12 @@ pub fn run(a: RunArgs) -> Result<()> {
 pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let config = a.config()?;
-    let seq = TumSequence::open(
-        &a.dataset,
-        a.camera.as_deref(),
-        AssociationOptions::default(),
-    )
-    .context("opening the dataset")?;
+    let seq = a.topics.open(&a.dataset, a.camera.as_deref())?;
     tracing::info!(
         "{} frames from {}, camera {}",
         seq.len(),
         a.dataset.display(),
-        seq.camera_source
+        seq.camera_source()
     );
     stride_frontend::set_opencv_threads(if a.deterministic { 1 } else { 2 })?;
     if a.save_map.is_some() && config.backend.is_none() {
@@ -259,7 +336,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     let mut world_origin = None;
     if let Some(path) = &a.load_map {
         let t = Instant::now();
-        let saved = SavedMap::load(path, &seq.camera.camera)?;
+        let saved = SavedMap::load(path, &seq.camera().camera)?;
         tracing::info!(
             "loaded {}: {} keyframes, {} points in {:.0} ms; world from {}",
             path.display(),
@@ -282,7 +359,7 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     let summary = super::run_files::write_run(a, &config, &seq, out)?;
     if let Some((path, map, world)) = to_save {
         let saved = SavedMap {
-            camera: seq.camera.camera,
+            camera: seq.camera().camera,
             map,
             world_from_map: world.world_from_slam,
             world: world_origin.unwrap_or_else(|| world.describe()),

@@ -13,8 +13,8 @@ use stride::pipeline::world::WorldSource;
 use stride::pipeline::{median_p95, FrameStatus, RunOutput};
 use stride::{MapOutput, PipelineOutput};
 use stride_datasets::grid_file::read_grid;
+use stride_datasets::sequence::Sequence;
 use stride_datasets::trajectory_file::write_tum_trajectory;
-use stride_datasets::tum::TumSequence;
 use stride_eval::{ate, rpe, AteResult, Preset, RpeOptions, RpeResult};
 use stride_mapping::metrics::{compare, floor_fit, MapScore};
 use stride_output::fs::{write_atomic, StagedDir};
@@ -40,7 +40,7 @@ pub struct RunSummary {
 pub fn write_run(
     a: &RunArgs,
     config: &Config,
-    seq: &TumSequence,
+    seq: &Sequence,
     out: PipelineOutput,
 ) -> Result<RunSummary> {
     let (output, map) = (out.run, out.map);
@@ -73,7 +73,7 @@ pub fn write_run(
     };
     // In the ground truth's world, the same views at ground-truth poses: the part of the
     // map's error (and unevenness) that is not the SLAM's.
-    let views_gt = match (&map, &seq.groundtruth) {
+    let views_gt = match (&map, seq.groundtruth()) {
         (Some(m), Some(gt)) if in_gt_world => {
             let frames: Vec<usize> = m
                 .stats
@@ -116,7 +116,7 @@ pub fn write_run(
     }
 
     let ate_opts = stride::pipeline::slam_ate_options();
-    let (ate_r, rpe_r) = match &seq.groundtruth {
+    let (ate_r, rpe_r) = match seq.groundtruth() {
         Some(gt) => {
             let at = ate(gt, &traj, &ate_opts);
             let rp = rpe(gt, &traj, &RpeOptions::for_preset(Preset::Evo));
@@ -132,7 +132,7 @@ pub fn write_run(
         }
         None => (None, None),
     };
-    let ate_live = match (&seq.groundtruth, &live) {
+    let ate_live = match (seq.groundtruth(), &live) {
         (Some(gt), Some(live)) => ate(gt, live, &ate_opts).ok(),
         _ => None,
     };
@@ -233,7 +233,7 @@ fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
 fn report_json(
     a: &RunArgs,
     config: &Config,
-    seq: &TumSequence,
+    seq: &Sequence,
     out: &RunOutput,
     at: Option<&AteResult>,
     rp: Option<&RpeResult>,
@@ -384,7 +384,7 @@ fn report_json(
         "relocalizations".into(),
         json!(count(FrameStatus::Relocalized)),
     );
-    m.insert("camera".into(), json!(seq.camera_source.to_string()));
+    m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());
     }

@@ -2,8 +2,8 @@
 //! fed one by one, unreadable frames recorded as skipped.
 
 use super::{FrameRecord, Pipeline, PipelineConfig, PipelineError, PipelineOutput};
+use stride_datasets::sequence::Sequence;
 use stride_datasets::stream::StreamError;
-use stride_datasets::tum::TumSequence;
 
 /// Frames decoded ahead of the pipeline.
 const DECODE_AHEAD: usize = 4;
@@ -11,20 +11,17 @@ const DECODE_AHEAD: usize = 4;
 /// Runs the pipeline over the first `max_frames` frames of `seq` (all when `None`);
 /// `on_frame` sees each frame's record as it is made (for progress bars).
 pub fn run_sequence(
-    seq: &TumSequence,
+    seq: &Sequence,
     config: PipelineConfig,
     max_frames: Option<usize>,
     mut on_frame: impl FnMut(&FrameRecord),
 ) -> Result<PipelineOutput, PipelineError> {
-    let mut pipeline = Pipeline::new(&seq.camera, config)?;
+    let mut pipeline = Pipeline::new(seq.camera(), config)?;
     for item in seq.stream(max_frames, DECODE_AHEAD) {
         let record = match item {
             Ok(d) => pipeline.process(&d.frame, d.decode_s)?,
             Err(StreamError::Frame(failure)) => {
-                let t_s = seq
-                    .frames
-                    .get(failure.index)
-                    .map_or(f64::NAN, |e| e.t_rgb_s);
+                let t_s = seq.frame_time_s(failure.index).unwrap_or(f64::NAN);
                 pipeline.skip(failure.index, t_s, failure.error.to_string())?
             }
             Err(StreamError::Stopped(e)) => return Err(e.into()),

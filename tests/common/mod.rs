@@ -162,6 +162,17 @@ pub fn octomap_python() -> Option<PathBuf> {
     found
 }
 
+/// The python of a venv with the `mcap` and `mcap-ros2-support` packages
+/// (`$STRIDE_MCAP_PYTHON`, else the peers venv). Missing, it fails the test under `CI=true`
+/// and skips it (`None`) elsewhere.
+pub fn mcap_python() -> Option<PathBuf> {
+    let found = venv_with("mcap_ros2", "STRIDE_MCAP_PYTHON");
+    if found.is_none() {
+        missing_peer("mcap and mcap-ros2-support ($STRIDE_MCAP_PYTHON or /tmp/peers-venv)");
+    }
+    found
+}
+
 /// A peer tool the test needs is not installed: a failure under `CI=true`, a skip (with a
 /// note on stderr) elsewhere.
 pub fn missing_peer(what: &str) {

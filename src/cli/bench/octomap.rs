@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use stride::known_poses::{map_sequence, phantom_score, FLOOR_BAND_M};
 use stride_core::grid::Grid;
 use stride_datasets::grid_file::read_grid;
+use stride_datasets::sequence::Sequence;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
 use stride_mapping::input::{filtered_map_points, SensorFrame};
@@ -109,7 +110,14 @@ fn one_sequence(
         Box::new(StackMapper::new(StackConfig::default())?),
         Box::new(FankhauserMapper::new(FankhauserConfig::default())?),
     ];
-    let (runs, counts) = map_sequence(&seq, &gt, mappers, Some(frames), terrain.as_ref(), || {})?;
+    let (runs, counts) = map_sequence(
+        &Sequence::Tum(seq.clone()),
+        &gt,
+        mappers,
+        Some(frames),
+        terrain.as_ref(),
+        || {},
+    )?;
     let geometry = runs
         .first()
         .map(|r| r.layers.elevation.geometry)
