@@ -355,8 +355,12 @@ fn a_log_written_by_stride_reads_back_in_the_python_mcap_packages() {
 /// Writes a log with one colour image in `encoding` and a depth image, on stride's default
 /// topics; the colour channel's message encoding is `message_encoding`.
 fn odd_log(path: &Path, encoding: &str, message_encoding: &str) {
+    odd_log_with(path, encoding, message_encoding, mcap::WriteOptions::new());
+}
+
+fn odd_log_with(path: &Path, encoding: &str, message_encoding: &str, options: mcap::WriteOptions) {
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
-    let mut w = mcap::Writer::new(file).unwrap();
+    let mut w = options.create(file).unwrap();
     let schema = w
         .add_schema(
             Ros2Type::Image.name(),
@@ -448,6 +452,31 @@ fn bad_logs_are_clear_errors_and_leave_no_output() {
         e.contains("image_color, message 0: image is 8x6 but the camera is 640x480"),
         "{e}"
     );
+    // An unindexed, unchunked log without a summary reads as well as an indexed one.
+    let plain = dir.join("plain.mcap");
+    let options = mcap::WriteOptions::new()
+        .use_chunks(false)
+        .emit_summary_records(false)
+        .emit_summary_offsets(false);
+    odd_log_with(&plain, "mono8", "cdr", options);
+    let camera = dir.join("cam.json");
+    std::fs::write(
+        &camera,
+        r#"{"fx": 9, "fy": 9, "cx": 4, "cy": 3, "width": 8, "height": 6, "depth_scale": 1000}"#,
+    )
+    .unwrap();
+    let seq = McapSequence::open(
+        &plain,
+        &McapTopics::default(),
+        camera.to_str(),
+        AssociationOptions::default(),
+    )
+    .unwrap();
+    let frames: Vec<_> = seq.stream(None, 1).map(|f| f.unwrap().frame).collect();
+    assert_eq!(
+        (frames.len(), frames[0].t_s, frames[0].rgb.width()),
+        (1, 5.0, 8)
+    );
     // Another message encoding than CDR.
     let json = dir.join("json.mcap");
     odd_log(&json, "rgb8", "json");
@@ -536,5 +565,121 @@ fn bad_logs_are_clear_errors_and_leave_no_output() {
         .filter(|n| n.to_string_lossy().contains("out.mcap"))
         .collect();
     assert!(left.is_empty(), "left behind: {left:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_run_written_as_mcap_opens_with_foxglove_schemas() {
+    let Some(teddy) = teddy() else { return };
+    let Some(python) = mcap_python() else { return };
+    let dir = scratch("foxglove");
+    let (out, log) = (dir.join("run"), dir.join("run.mcap"));
+    run_ok(&[
+        "run",
+        "--dataset",
+        teddy.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--max-frames",
+        "80",
+        "--mcap-out",
+        log.to_str().unwrap(),
+        "-q",
+    ]);
+    let peer = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/peers/mcap_peer.py");
+    let o = Command::new(&python)
+        .args([peer, "read", log.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let ch = &j["channels"];
+    for (topic, schema) in [
+        ("/tf", "foxglove.FrameTransform"),
+        ("/stride/trajectory", "foxglove.PosesInFrame"),
+        ("/stride/keyframes", "foxglove.PosesInFrame"),
+        ("/stride/map_points", "foxglove.PointCloud"),
+        ("/stride/elevation", "foxglove.Grid"),
+    ] {
+        let c = &ch[topic];
+        assert_eq!(
+            (c["schema"].as_str(), c["schema_title"].as_str()),
+            (Some(schema), Some(schema)),
+            "{topic}"
+        );
+        assert_eq!(
+            (
+                c["schema_encoding"].as_str(),
+                c["message_encoding"].as_str()
+            ),
+            (Some("jsonschema"), Some("json"))
+        );
+        assert_eq!(
+            c["first"]["frame_id"]
+                .as_str()
+                .or(c["first"]["parent"].as_str()),
+            Some("world"),
+            "{topic}"
+        );
+    }
+    // Camera transforms: one per frame, the trajectory's poses at its stamps.
+    let traj: Vec<Vec<String>> = data_lines(&out.join("trajectory.tum"))
+        .iter()
+        .map(|l| l.split_whitespace().map(str::to_owned).collect())
+        .collect();
+    assert_eq!(ch["/tf"]["count"], traj.len());
+    let tf = &ch["/tf"]["first"];
+    let t0 = Time::parse_decimal(&traj[0][0]).unwrap();
+    assert_eq!(tf["timestamp"], serde_json::json!([t0.sec, t0.nanosec]));
+    assert_eq!(tf["child"], "camera");
+    for i in 0..3 {
+        let want: f64 = traj[0][1 + i].parse().unwrap();
+        assert!((tf["translation"][i].as_f64().unwrap() - want).abs() < 1e-8);
+    }
+    let path = &ch["/stride/trajectory"]["first"];
+    assert_eq!(path["poses"], traj.len());
+    let last = traj.last().unwrap();
+    for i in 0..3 {
+        let want: f64 = last[1 + i].parse().unwrap();
+        assert!((path["last"][i].as_f64().unwrap() - want).abs() < 1e-8);
+    }
+    assert_eq!(
+        ch["/stride/keyframes"]["first"]["poses"],
+        data_lines(&out.join("keyframes.tum")).len()
+    );
+    // The feature map and the elevation map, as report.json and map/ have them.
+    let report = common::report(&out);
+    let cloud = &ch["/stride/map_points"]["first"];
+    assert_eq!(cloud["points"], report["map_points"]);
+    assert_eq!(
+        cloud["fields"],
+        serde_json::json!([["x", 0, 7], ["y", 4, 7], ["z", 8, 7]])
+    );
+    let grid = stride_datasets::grid_file::read_grid(&out.join("map/elevation.npy"), None).unwrap();
+    let g = &ch["/stride/elevation"]["first"];
+    assert_eq!(
+        (g["columns"].as_u64(), g["rows"].as_u64()),
+        (
+            Some(grid.geometry.cols as u64),
+            Some(grid.geometry.rows as u64)
+        )
+    );
+    assert_eq!(g["cell_size"][0].as_f64(), Some(grid.geometry.resolution));
+    let corner_x = grid.geometry.origin_x - grid.geometry.resolution / 2.0;
+    assert!((g["corner"][0].as_f64().unwrap() - corner_x).abs() < 1e-9);
+    let known: Vec<f32> = grid
+        .as_slice()
+        .iter()
+        .copied()
+        .filter(|h| !h.is_nan())
+        .collect();
+    assert!(known.len() > 1000, "the map is nearly empty");
+    assert_eq!(g["known"], known.len());
+    let mean = known.iter().map(|&h| f64::from(h)).sum::<f64>() / known.len() as f64;
+    assert!((g["mean_elevation"].as_f64().unwrap() - mean).abs() < 1e-5);
+    assert_eq!(
+        g["fields"],
+        serde_json::json!([["elevation", 0, 7], ["variance", 4, 7]])
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -2,7 +2,9 @@
 Python `mcap` and `mcap-ros2-support` packages (a throwaway venv, never a project dependency).
 
     python mcap_peer.py write OUT.mcap FRAMES   a ROS 2 RGB-D log stride must read
-    python mcap_peer.py read FILE.mcap          what a ROS 2 reader sees in a log, as JSON
+    python mcap_peer.py read FILE.mcap          what a reader sees in a log, as JSON (ROS 2
+                                                CDR messages decoded by mcap-ros2-support,
+                                                Foxglove JSON messages by json)
 
 The written log (zstd chunks, the packages' defaults) holds FRAMES frames at 30 Hz from
 1700000000.123456789 s: /cam/color (bgr8, 160x120, step padded to 488 bytes), /cam/depth
@@ -10,6 +12,7 @@ The written log (zstd chunks, the packages' defaults) holds FRAMES frames at 30 
 /tf (odom -> cam_gt). Pixel values follow the formulas in `pattern` so that the Rust side can
 check every one.
 """
+import base64
 import json
 import math
 import struct
@@ -120,16 +123,55 @@ def write(path, frames):
         w.finish()
 
 
+def foxglove_summary(schema, m):
+    """The fields of a Foxglove JSON message that the Rust side checks."""
+    if schema == "foxglove.FrameTransform":
+        return {"parent": m["parent_frame_id"], "child": m["child_frame_id"],
+                "translation": [m["translation"][k] for k in "xyz"],
+                "timestamp": [m["timestamp"]["sec"], m["timestamp"]["nsec"]]}
+    if schema == "foxglove.PosesInFrame":
+        return {"frame_id": m["frame_id"], "poses": len(m["poses"]),
+                "last": [m["poses"][-1]["position"][k] for k in "xyz"] if m["poses"] else None}
+    data = base64.b64decode(m["data"])
+    fields = [(f["name"], f["offset"], f["type"]) for f in m["fields"]]
+    if schema == "foxglove.PointCloud":
+        n = len(data) // m["point_stride"]
+        pts = [struct.unpack_from("<3f", data, i * m["point_stride"]) for i in range(n)]
+        return {"frame_id": m["frame_id"], "fields": fields, "points": n,
+                "mean": [sum(p[i] for p in pts) / max(n, 1) for i in range(3)]}
+    if schema == "foxglove.Grid":
+        rows = len(data) // m["row_stride"]
+        cells = [struct.unpack_from("<2f", data, r * m["row_stride"] + c * m["cell_stride"])
+                 for r in range(rows) for c in range(m["column_count"])]
+        known = [h for h, _ in cells if not math.isnan(h)]
+        return {"frame_id": m["frame_id"], "fields": fields, "columns": m["column_count"],
+                "rows": rows, "cell_size": [m["cell_size"]["x"], m["cell_size"]["y"]],
+                "corner": [m["pose"]["position"][k] for k in "xyz"], "known": len(known),
+                "mean_elevation": sum(known) / max(len(known), 1)}
+    return {}
+
+
 def read(path):
     out = {"channels": {}}
+    factory = DecoderFactory()
+    decoders = {}
     with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, channel, message, m in reader.iter_decoded_messages():
+        reader = make_reader(f)
+        for schema, channel, message in reader.iter_messages():
             c = out["channels"].setdefault(channel.topic, {
                 "schema": schema.name, "schema_encoding": schema.encoding,
                 "message_encoding": channel.message_encoding,
                 "metadata": dict(channel.metadata), "count": 0, "stamps": []})
             c["count"] += 1
+            if channel.message_encoding == "json":
+                m = json.loads(message.data)
+                if c["count"] == 1:
+                    c["first"] = foxglove_summary(schema.name, m)
+                    c["schema_title"] = json.loads(schema.data).get("title")
+                continue
+            if schema.id not in decoders:
+                decoders[schema.id] = factory.decoder_for(channel.message_encoding, schema)
+            m = decoders[schema.id](message.data)
             if hasattr(m, "header"):
                 c["stamps"].append([m.header.stamp.sec, m.header.stamp.nanosec])
                 if c["count"] == 1:

@@ -233,6 +233,7 @@ fn run_args(a: &DemoArgs, dir: &Path) -> RunArgs {
         world_from_groundtruth: true,
         ignore_accelerometer: false,
         save_map: None,
+        mcap_out: None,
         load_map: None,
     }
 }

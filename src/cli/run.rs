@@ -93,6 +93,11 @@ pub struct RunArgs {
     /// to this file for a later `--load-map` (format: docs/map-format.md). Needs a back end.
     #[arg(long, value_name = "FILE.json")]
     pub save_map: Option<PathBuf>,
+    /// Also write the run as an MCAP log that Foxglove shows in 3-D: the camera's transforms,
+    /// path and keyframes, the feature map's points and the elevation map (Foxglove's
+    /// schemas, JSON encoding; world frame, z up).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub mcap_out: Option<PathBuf>,
     /// Start in a map saved by `--save-map`: the first frame is relocalized in it (an error
     /// when it cannot be), poses come out in that map's world, and the back end extends the
     /// map. Made with the same camera.
@@ -319,6 +324,12 @@ pub fn run(a: RunArgs) -> Result<()> {
 /// Runs and writes everything into `a.out`; returns the summary.
 pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
+    if let Some(path) = a.mcap_out.as_ref().filter(|p| p.exists() && !a.overwrite) {
+        anyhow::bail!(
+            "--mcap-out {}: the file exists; pass --overwrite to replace it",
+            path.display()
+        );
+    }
     let config = a.config()?;
     let seq = a.topics.open(&a.dataset, a.camera.as_deref())?;
     tracing::info!(

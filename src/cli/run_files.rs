@@ -109,6 +109,9 @@ pub fn write_run(
         None => None,
     };
     write_frames_csv(&dir.join("frames.csv"), &output)?;
+    if let Some(path) = &a.mcap_out {
+        write_foxglove_log(path, &output, &traj, map.as_ref())?;
+    }
     let config_toml = config.to_toml()?;
     write_atomic(&dir.join("config.toml"), config_toml.as_bytes())?;
     if let Some(m) = &map {
@@ -407,4 +410,34 @@ fn report_json(
         m.insert("skipped".into(), Value::Array(skipped));
     }
     Value::Object(m)
+}
+
+/// The run as an MCAP log for Foxglove (`--mcap-out`): camera transforms, the path, the
+/// keyframes, the feature map's points and the elevation map, in the world frame.
+fn write_foxglove_log(
+    path: &std::path::Path,
+    output: &RunOutput,
+    traj: &stride_core::trajectory::Trajectory,
+    map: Option<&stride::pipeline::MapOutput>,
+) -> Result<()> {
+    use stride_datasets::mcap::foxglove::{write_run_log, RunLog};
+    let pairs = |t: &stride_core::trajectory::Trajectory| -> Vec<_> {
+        t.iter().map(|(s, p)| (s, *p)).collect()
+    };
+    let poses = pairs(traj);
+    let keyframes = output
+        .backend
+        .as_ref()
+        .map_or_else(Vec::new, |b| pairs(&b.keyframe_trajectory(output)));
+    let points = output
+        .backend
+        .as_ref()
+        .map_or(&[][..], |b| b.points_world.as_slice());
+    let log = RunLog {
+        poses: &poses,
+        keyframes: &keyframes,
+        points_world: points,
+        elevation: map.map(|m| (&m.layers.elevation, &m.layers.variance)),
+    };
+    write_run_log(path, &log).with_context(|| format!("--mcap-out {}", path.display()))
 }

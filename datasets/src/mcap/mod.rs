@@ -18,6 +18,7 @@
 
 pub mod cdr;
 pub mod convert;
+pub mod foxglove;
 pub mod images;
 pub mod ros2;
 mod scan;

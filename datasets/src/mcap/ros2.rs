@@ -43,16 +43,17 @@ impl Time {
         Some(Self { sec, nanosec })
     }
 
-    /// The time nearest `t_s` seconds (for stamps that exist only as floats).
+    /// The time of `t_s` seconds (a stamp that exists only as a float), to the nearest
+    /// microsecond: an f64 Unix time resolves about 0.24 µs, so finer digits are noise, and
+    /// stamps written with six decimals (TUM's) come back digit for digit.
     pub fn from_seconds(t_s: f64) -> Self {
-        let sec = t_s.floor();
-        let mut nanosec = ((t_s - sec) * 1e9).round() as u32;
-        let mut sec = sec as i32;
-        if nanosec >= 1_000_000_000 {
-            sec += 1;
-            nanosec -= 1_000_000_000;
+        let us = (t_s * 1e6).round();
+        let sec = (us / 1e6).floor();
+        let nanosec = ((us - sec * 1e6) as u32).min(999_999) * 1000;
+        Self {
+            sec: sec as i32,
+            nanosec,
         }
-        Self { sec, nanosec }
     }
 
     fn read(r: &mut CdrReader) -> Result<Self, CdrError> {
@@ -637,6 +638,8 @@ mod tests {
         assert!(Time::parse_decimal("1.2e3").is_none());
         let f = Time::from_seconds(1.9999999999);
         assert_eq!((f.sec, f.nanosec), (2, 0));
+        let f = Time::from_seconds(1_341_841_873.273_798);
+        assert_eq!((f.sec, f.nanosec), (1_341_841_873, 273_798_000));
     }
 
     #[test]

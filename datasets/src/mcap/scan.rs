@@ -28,13 +28,16 @@ pub(super) fn for_each_message(
 ) -> Result<(), DatasetError> {
     let file = std::fs::File::open(path).map_err(|e| DatasetError::io(path, e))?;
     // Chunk and data-section CRCs are checked (a flipped bit is an error, not a changed
-    // pixel), and a record claiming more bytes than the file holds (or 1 GiB) is refused
-    // before anything is buffered for it.
+    // pixel). A record's claimed length is bounded before anything is buffered for it:
+    // 100 times the file (records inside compressed chunks can be far larger than the
+    // file), at least 64 MiB, at most 1 GiB.
     let file_len = file
         .metadata()
         .map_err(|e| DatasetError::io(path, e))?
         .len();
-    let limit = usize::try_from(file_len).unwrap_or(usize::MAX).min(1 << 30);
+    let limit = usize::try_from(file_len.saturating_mul(100))
+        .unwrap_or(usize::MAX)
+        .clamp(64 << 20, 1 << 30);
     let options = ::mcap::sans_io::LinearReaderOptions::default()
         .with_validate_chunk_crcs(true)
         .with_validate_data_section_crc(true)

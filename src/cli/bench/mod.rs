@@ -5,6 +5,7 @@ mod ba;
 mod eval;
 mod map;
 mod map_reference;
+mod mcap;
 mod octomap;
 mod slam;
 mod synth;
@@ -28,6 +29,9 @@ pub enum BenchCommand {
     /// Elevation-map update time for full depth frames, ours and the Fankhauser baseline,
     /// frames decoded up front.
     Map(map::MapBenchArgs),
+    /// Frames per second read from MCAP logs (raw, zstd, PNG) converted from a TUM folder,
+    /// against reading the folder itself.
+    Mcap(mcap::McapBenchArgs),
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
@@ -37,6 +41,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Vo(a) => slam::bench_vo(a),
         BenchCommand::Map(a) => map::bench_map(a),
         BenchCommand::Ba(a) => ba::bench_ba(a),
+        BenchCommand::Mcap(a) => mcap::bench_mcap(a),
     }
 }
 
