@@ -21,9 +21,10 @@ use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::grid_file::{decode_npy_f32, encode_npy_f32, parse_grid_header};
 use stride_datasets::mcap::images::{depth_image, rgb_image, ImagePayload};
 use stride_datasets::mcap::ros2::{
-    CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, LaserScanMsg, Ros2Type, TfMessage,
-    Time, TransformStamped,
+    CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, LaserScanMsg, TfMessage, Time,
+    TransformStamped,
 };
+use stride_datasets::mcap::schema::Ros2Type;
 use stride_datasets::mcap::{McapSequence, McapTopics};
 use stride_datasets::orbslam_settings;
 use stride_datasets::png_io::{

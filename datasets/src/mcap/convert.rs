@@ -16,9 +16,9 @@
 
 use super::images::{self, ImagePayload};
 use super::ros2::{
-    CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, Ros2Type, TfMessage, Time,
-    TransformStamped,
+    CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, TfMessage, Time, TransformStamped,
 };
+use super::schema::Ros2Type;
 use super::{
     McapSequence, DEFAULT_CAMERA_INFO_TOPIC, DEFAULT_DEPTH_TOPIC, DEFAULT_IMU_TOPIC,
     DEFAULT_RGB_TOPIC, DEPTH_UNITS_KEY, GROUNDTRUTH_CHILD, GROUNDTRUTH_PARENT, TF_TOPIC,

@@ -22,14 +22,16 @@ pub mod foxglove;
 pub mod images;
 pub mod ros2;
 mod scan;
+pub mod schema;
 
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use crate::stream::{DecodedFrame, FrameFailure, FrameStream};
 use crate::tum::AssociationOptions;
 use images::ImagePayload;
-use ros2::{CompressedImageMsg, ImageMsg, Ros2Type};
+use ros2::{CompressedImageMsg, ImageMsg};
 pub use scan::{summarize, LogSummary, TopicSummary};
+use schema::Ros2Type;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

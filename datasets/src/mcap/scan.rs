@@ -1,7 +1,8 @@
 //! One streaming pass over an MCAP file: every message in file order, with the checks and
 //! bookkeeping that opening a sequence and listing a log need.
 
-use super::ros2::{leading_header, CameraInfoMsg, ImuMsg, Ros2Type, TfMessage};
+use super::ros2::{leading_header, CameraInfoMsg, ImuMsg, TfMessage};
+use super::schema::Ros2Type;
 use super::{
     image_kind, McapTopics, DEFAULT_CAMERA_INFO_TOPIC, DEFAULT_IMU_TOPIC, DEPTH_UNITS_KEY,
 };
