@@ -26,6 +26,7 @@ pub mod image;
 pub mod plane;
 pub mod pose;
 pub mod rng;
+pub mod scan;
 pub mod serde_opt;
 pub mod time;
 pub mod trajectory;

@@ -12,6 +12,7 @@
 //! * [`mcap`]: MCAP logs (ROS 2 CDR messages) as RGB-D sequences, and TUM folders converted
 //!   to and from them.
 //! * [`sequence`]: either source as one [`sequence::Sequence`].
+//! * [`scan_log`]: 2-D range scans with their poses as text (paper 003's sensors).
 //! * [`png_io`]: PNG decoding and encoding for colour and 16-bit depth images.
 //! * [`grid_file`]: the grid format (`.npy` float32 layers + a JSON header) shared by the
 //!   synthetic ground truth and the elevation mapper.
@@ -24,6 +25,7 @@ pub mod grid_file;
 pub mod mcap;
 pub mod orbslam_settings;
 pub mod png_io;
+pub mod scan_log;
 pub mod sequence;
 pub mod stream;
 pub mod synth;

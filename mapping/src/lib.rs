@@ -32,6 +32,7 @@ pub mod metrics;
 pub mod naive;
 mod polar;
 pub mod post;
+pub mod range2d;
 pub mod stack;
 pub mod stereo;
 pub mod window;
