@@ -25,6 +25,7 @@ pub mod grid;
 pub mod image;
 pub mod plane;
 pub mod pose;
+pub mod range_sensor;
 pub mod rng;
 pub mod scan;
 pub mod serde_opt;

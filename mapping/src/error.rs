@@ -34,19 +34,6 @@ pub enum MappingError {
         /// What is expected of it.
         reason: &'static str,
     },
-    /// A raw URG-04LX range outside the interval where paper 003's calibration (eq. 4)
-    /// holds.
-    #[error(
-        "raw range {range_mm} mm is outside eq. 4's calibrated interval [{min_mm}, {max_mm}] mm"
-    )]
-    UncalibratedRange {
-        /// The raw range (mm).
-        range_mm: f64,
-        /// Lower end of the valid interval (mm).
-        min_mm: f64,
-        /// Upper end (mm).
-        max_mm: f64,
-    },
 }
 
 /// Largest window accepted, in cells per side (16.8 million cells: 1 mm cells over 4 m).

@@ -8,6 +8,7 @@ mod eval;
 mod eval_ci;
 pub mod gates;
 mod map;
+mod map2d;
 mod map_figures;
 mod run;
 mod run_files;
@@ -41,6 +42,11 @@ enum Command {
     Run(run::RunArgs),
     /// Build an elevation map of a sequence from its depth images and known poses.
     Map(map::MapArgs),
+    /// Build paper 003's terrain map (elevation and certainty grids) from a 2-D range-scan log.
+    Map2d(map2d::Map2dArgs),
+    /// Simulate a tilted 2-D laser scanner (URG-04LX) in the synthetic world: a scan log and
+    /// the true terrain.
+    Scans(map2d::ScansArgs),
     /// Render a synthetic legged-robot RGB-D sequence with ground truth (TUM layout).
     Synth(synth::SynthArgs),
     /// The whole pipeline on the embedded synthetic sequence: render, track, map, report.
@@ -127,6 +133,8 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Synth(a) => synth::run(a),
         Command::Run(a) => run::run(a),
         Command::Map(a) => map::run(a),
+        Command::Map2d(a) => map2d::map2d(a),
+        Command::Scans(a) => map2d::scans(a),
         Command::Demo(a) => demo::run(a),
         Command::Config(a) => config::run(a),
         Command::Convert(a) => convert::run(a),

@@ -22,6 +22,7 @@
 
 pub mod motion;
 pub mod render;
+pub mod scanner;
 pub mod scene;
 pub mod terrain;
 pub mod texture;

@@ -325,15 +325,31 @@ impl Scene {
         u: f64,
         v: f64,
     ) -> Option<Hit> {
+        let boxes = candidates
+            .iter()
+            .filter(|sb| u >= sb.u0 && u <= sb.u1 && v >= sb.v0 && v <= sb.v1)
+            .filter_map(|sb| self.boxes.get(sb.index));
+        self.nearest(o, d, t_max, boxes)
+    }
+
+    /// First hit along the unit ray `o + t d`, `t <= t_max`, testing every object (for rays
+    /// that are not a camera's pixels, such as a laser scanner's beams).
+    pub fn trace_ray(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> Option<Hit> {
+        self.nearest(o, d, t_max, self.boxes.iter())
+    }
+
+    /// The nearest hit of the terrain and `boxes`.
+    #[inline]
+    fn nearest<'s>(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+        boxes: impl Iterator<Item = &'s SceneBox>,
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
-        for sb in candidates {
-            if u < sb.u0 || u > sb.u1 || v < sb.v0 || v > sb.v1 {
-                continue;
-            }
-            let Some(b) = self.boxes.get(sb.index) else {
-                continue;
-            };
+        for b in boxes {
             if let Some((t, normal, uv)) = b.intersect(o, d, limit) {
                 limit = t;
                 best = Some(Hit {

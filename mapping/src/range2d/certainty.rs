@@ -15,9 +15,26 @@
 use crate::MappingError;
 use stride_core::grid::{Grid, GridGeometry};
 
+/// How a cell's elevation takes a new measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ElevationRule {
+    /// Eq. 10: the highest measurement.
+    Highest,
+    /// A measurement consistent with the cell (eq. 9's test) is averaged into it, weighted
+    /// by the cell's certainty. An inconsistent one feeds a second hypothesis of the cell
+    /// (averaged the same way, restarted by a measurement consistent with neither), which
+    /// takes over when its certainty exceeds the first's. Range noise then averages out
+    /// instead of lifting every cell by the noise's upper tail, a lone mixed return never
+    /// moves a cell, and a surface that changes (or was first seen through mixed returns)
+    /// takes over once measured more often.
+    ConsistentMean,
+}
+
 /// The map's parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CertaintyConfig {
+    /// How a cell's elevation takes a measurement.
+    pub rule: ElevationRule,
     /// Certainty gained by a consistent measurement, `a` of eq. 9.
     pub increment: f32,
     /// Eq. 11: an unknown cell (`c = 0`) with at least this many known cells among its 8
@@ -34,6 +51,7 @@ pub struct CertaintyConfig {
 impl Default for CertaintyConfig {
     fn default() -> Self {
         Self {
+            rule: ElevationRule::ConsistentMean,
             increment: 1.0,
             fill_min_known: 5,
             cas_fraction: None,
@@ -51,6 +69,8 @@ pub struct CertaintyMap {
     elevation: Grid<f32>,
     /// Certainty (0 where unknown).
     certainty: Grid<f32>,
+    /// The second hypothesis of [`ElevationRule::ConsistentMean`]: height and certainty.
+    alternative: Vec<(f32, f32)>,
     /// Measurements that raised a cell's certainty, and those that did not (eq. 9).
     consistent: usize,
     inconsistent: usize,
@@ -94,6 +114,11 @@ impl CertaintyMap {
             geometry,
             elevation: Grid::filled(geometry, f32::NAN),
             certainty: Grid::filled(geometry, 0.0),
+            alternative: if config.rule == ElevationRule::ConsistentMean {
+                vec![(f32::NAN, 0.0); geometry.len()]
+            } else {
+                Vec::new()
+            },
             consistent: 0,
             inconsistent: 0,
         })
@@ -121,14 +146,42 @@ impl CertaintyMap {
             return false;
         };
         let h_m = h_m as f32;
-        if *c == 0.0 || (h_m - *h).abs() <= delta_z_max as f32 {
-            *c += self.config.increment;
+        let (a, dz) = (self.config.increment, delta_z_max as f32);
+        let consistent = *c == 0.0 || (h_m - *h).abs() <= dz;
+        if consistent {
             self.consistent += 1;
         } else {
             self.inconsistent += 1;
         }
-        if h.is_nan() || h_m > *h {
-            *h = h_m;
+        match self.config.rule {
+            ElevationRule::Highest => {
+                if consistent {
+                    *c += a;
+                }
+                if h.is_nan() || h_m > *h {
+                    *h = h_m;
+                }
+            }
+            ElevationRule::ConsistentMean => {
+                if *c == 0.0 {
+                    *h = h_m;
+                    *c = a;
+                } else if consistent {
+                    *h = (*h * *c + h_m * a) / (*c + a);
+                    *c += a;
+                } else if let Some((ah, ac)) = self.alternative.get_mut(i) {
+                    if *ac > 0.0 && (h_m - *ah).abs() <= dz {
+                        *ah = (*ah * *ac + h_m * a) / (*ac + a);
+                        *ac += a;
+                    } else {
+                        (*ah, *ac) = (h_m, a);
+                    }
+                    if *ac > *c {
+                        std::mem::swap(h, ah);
+                        std::mem::swap(c, ac);
+                    }
+                }
+            }
         }
         true
     }
@@ -281,6 +334,7 @@ mod tests {
     #[test]
     fn eq9_and_eq10_by_hand() {
         let mut m = map(CertaintyConfig {
+            rule: ElevationRule::Highest,
             fill_min_known: 0,
             ..CertaintyConfig::default()
         });
@@ -300,6 +354,32 @@ mod tests {
         assert_eq!(c.get(1, 2), Some(3.0));
         assert!(h.get(0, 0).unwrap().is_nan());
         assert_eq!(c.get(0, 0), Some(0.0));
+    }
+
+    #[test]
+    fn the_consistent_mean_averages_noise_and_keeps_steps() {
+        let mut m = map(CertaintyConfig {
+            fill_min_known: 0,
+            ..CertaintyConfig::default()
+        });
+        let (x, y) = (0.021, 0.013);
+        m.update(x, y, 0.10, 0.005);
+        m.update(x, y, 0.104, 0.005); // consistent: (0.10 + 0.104) / 2
+        m.update(x, y, 0.098, 0.005); // consistent: (0.102 * 2 + 0.098) / 3
+        m.update(x, y, 0.30, 0.005); // inconsistent (a mixed return): the alternative
+        m.update(x, y, 0.20, 0.005); // inconsistent with both: the alternative restarts
+        m.update(x, y, 0.201, 0.005); // the alternative grows to 2 of 3
+        assert!((m.cell(m.geometry.index(1, 2).unwrap()).unwrap().0 - 0.1007).abs() < 1e-4);
+        m.update(x, y, 0.199, 0.005); // 3 of 3: not yet more certain
+        m.update(x, y, 0.2, 0.005); // 4 > 3: the surface moved up (an object put there)
+        assert_eq!(m.consistency(), (3, 5));
+        let (h, c, _) = m.finish();
+        assert!(
+            (h.get(1, 2).unwrap() - 0.2).abs() < 1e-3,
+            "{:?}",
+            h.get(1, 2)
+        );
+        assert_eq!(c.get(1, 2), Some(4.0));
     }
 
     #[test]

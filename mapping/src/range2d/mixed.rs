@@ -13,6 +13,9 @@
 //!   in scan `k-1` marks an angular sector; if the returns of scan `k` in that sector
 //!   scatter along the beam (the standard deviation of eq. 12, of the coordinate along the
 //!   sensor's central beam) much more than those of scan `k+1`, they are mixed and removed.
+//!   The test runs over windows of `scatter_window_beams` beams sliding along the sector
+//!   (by half a window): over a whole floor line, the few mixed returns behind one edge
+//!   would not move the sector's deviation.
 
 use stride_core::scan::Scan;
 
@@ -37,6 +40,8 @@ pub struct MixedConfig {
     pub scatter_ratio: f64,
     /// ... plus this (m).
     pub scatter_floor_m: f64,
+    /// Beams of the windows eq. 12 is evaluated over within a sector.
+    pub scatter_window_beams: usize,
 }
 
 impl Default for MixedConfig {
@@ -46,10 +51,11 @@ impl Default for MixedConfig {
             breakpoint_noise_m: 0.03,
             min_cluster_beams: 4,
             edge_min_beams: 8,
-            edge_line_tolerance_m: 0.01,
+            edge_line_tolerance_m: 0.03,
             edge_max_angle_rad: 30f64.to_radians(),
             scatter_ratio: 3.0,
             scatter_floor_m: 0.01,
+            scatter_window_beams: 12,
         }
     }
 }
@@ -174,19 +180,32 @@ pub fn three_scan_filter(
     next: &Scan,
     config: &MixedConfig,
 ) -> usize {
-    let mut removed = 0;
+    let w = config.scatter_window_beams.max(2);
+    let mut flagged: Vec<(usize, usize)> = Vec::new();
     for (first, last) in edge_sectors(previous, config) {
-        let (s_cur, n_cur) = sector_scatter(current, first, last);
-        let (s_next, n_next) = sector_scatter(next, first, last);
-        if n_cur < 2 || n_next < 2 {
-            continue;
+        let mut start = first;
+        loop {
+            let end = (start + w - 1).min(last);
+            let (s_cur, n_cur) = sector_scatter(current, start, end);
+            let (s_next, n_next) = sector_scatter(next, start, end);
+            if n_cur >= 2
+                && n_next >= 2
+                && s_cur > config.scatter_ratio * s_next + config.scatter_floor_m
+            {
+                flagged.push((start, end));
+            }
+            if end >= last {
+                break;
+            }
+            start += w / 2;
         }
-        if s_cur > config.scatter_ratio * s_next + config.scatter_floor_m {
-            for i in first..=last {
-                if current.valid(i) {
-                    current.drop_return(i);
-                    removed += 1;
-                }
+    }
+    let mut removed = 0;
+    for (first, last) in flagged {
+        for i in first..=last {
+            if current.valid(i) {
+                current.drop_return(i);
+                removed += 1;
             }
         }
     }

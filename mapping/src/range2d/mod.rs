@@ -7,11 +7,13 @@
 //! * [`plausibility`]: eq. 5's mounting, eq. 7's `gamma`, eqs. 6/8's `Delta z_max`, the
 //!   turning extension.
 //! * [`certainty`]: the elevation and certainty grids (eqs. 9-11, optional CAS filter).
+//! * [`mapper`]: the whole update over a sequence of scans.
 //! * [`mixed`]: mixed-measurement removal (range clustering, eq. 12's three-scan analysis).
 //!
 //! Scans with their poses are [`stride_core::scan::Scan`]s.
 
 pub mod certainty;
+pub mod mapper;
 pub mod mixed;
 pub mod plausibility;
 pub mod sensors;
