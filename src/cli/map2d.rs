@@ -12,12 +12,15 @@ use stride_datasets::scan_log::{read_scan_log, write_scan_log};
 use stride_datasets::synth::scanner::{walk_scans, RailRun, ScannerSim, MESSOR_TILT_RAD};
 use stride_datasets::synth::{Synth, SynthConfig};
 use stride_mapping::metrics::{compare, compare_over_seen};
-use stride_mapping::range2d::certainty::{weighted_median, CertaintyConfig, ElevationRule};
+use stride_mapping::range2d::certainty::{CertaintyConfig, ElevationRule};
 use stride_mapping::range2d::mapper::{
     calibrate_raw, covering_geometry, filter_scans, map_scans, RangeError, ScanMapConfig,
     ScanMapStats,
 };
 use stride_mapping::range2d::mixed::MixedConfig;
+use stride_mapping::range2d::yardstick::{
+    measure_object, mixed_truth, naive_and_seen, swept, KnownObject,
+};
 use stride_output::fs::{write_atomic, StagedDir};
 
 /// The simulated scene.
@@ -225,204 +228,6 @@ impl Map2dArgs {
     }
 }
 
-/// The cells the sensor swept: cells inside the quadrilaterals of returns of neighbouring
-/// beams in consecutive scans (all four returns present and within 5 cm of each other, so
-/// no depth edge is bridged). A map that fills the gaps between scan lines covers them; the
-/// returns alone do not.
-fn swept(scans: &[Scan], g: stride_core::grid::GridGeometry, max_range_m: f64) -> Grid<f32> {
-    let mut out = Grid::filled(g, f32::NAN);
-    let point = |s: &Scan, i: usize| {
-        s.ranges
-            .get(i)
-            .filter(|&&r| r <= max_range_m)
-            .and_then(|_| s.p_world(i))
-    };
-    for pair in scans.windows(2) {
-        let [a, b] = pair else { continue };
-        for i in 0..a.ranges.len().min(b.ranges.len()).saturating_sub(1) {
-            let (Some(p0), Some(p1), Some(q0), Some(q1)) =
-                (point(a, i), point(a, i + 1), point(b, i), point(b, i + 1))
-            else {
-                continue;
-            };
-            let quad = [p0, p1, q1, q0];
-            let close = quad
-                .iter()
-                .all(|p| quad.iter().all(|q| (p - q).norm() <= 0.05));
-            if !close {
-                continue;
-            }
-            let (x0, x1) = quad
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(l, h), p| (l.min(p.x), h.max(p.x)));
-            let (y0, y1) = quad
-                .iter()
-                .fold((f64::MAX, f64::MIN), |(l, h), p| (l.min(p.y), h.max(p.y)));
-            let (Some((r0, c0)), Some((r1, c1))) = (g.cell_of(x0, y0), g.cell_of(x1, y1)) else {
-                continue;
-            };
-            for r in r0..=r1 {
-                for c in c0..=c1 {
-                    let (x, y) = g.center(r, c);
-                    if inside_quad(&quad, x, y) {
-                        if let Some(v) = out.get_mut(r, c) {
-                            *v = 1.0;
-                        }
-                    }
-                }
-            }
-        }
-    }
-    out
-}
-
-/// Whether `(x, y)` lies in the convex quadrilateral `q` (its x-y projection, either
-/// winding).
-fn inside_quad(q: &[nalgebra::Point3<f64>; 4], x: f64, y: f64) -> bool {
-    let mut sign = 0.0f64;
-    for k in 0..4 {
-        let (a, b) = (q[k], q[(k + 1) % 4]);
-        let cross = (b.x - a.x) * (y - a.y) - (b.y - a.y) * (x - a.x);
-        if cross.abs() < 1e-15 {
-            continue;
-        }
-        if sign == 0.0 {
-            sign = cross.signum();
-        } else if cross.signum() != sign {
-            return false;
-        }
-    }
-    true
-}
-
-/// The objects' sizes read from a map: height the median of the cells inside the true
-/// footprint; length and width the extent, along x and y through the object's centre, of
-/// the cells above half its true height.
-fn object_table(map: &Grid<f32>, objects: &[Value]) -> Vec<Value> {
-    let g = map.geometry;
-    objects
-        .iter()
-        .filter_map(|o| {
-            let f = |k: &str| o.get(k).and_then(Value::as_f64);
-            let (x, y, l, w, h) = (f("x")?, f("y")?, f("length_m")?, f("width_m")?, f("height_m")?);
-            let mut inside: Vec<(f32, f32)> = Vec::new();
-            for r in 0..g.rows {
-                for c in 0..g.cols {
-                    let (cx, cy) = g.center(r, c);
-                    if (cx - x).abs() <= l / 2.0 && (cy - y).abs() <= w / 2.0 {
-                        if let Some(v) = map.get(r, c).filter(|v| !v.is_nan()) {
-                            inside.push((v, 1.0));
-                        }
-                    }
-                }
-            }
-            let height = (!inside.is_empty()).then(|| f64::from(weighted_median(&mut inside)));
-            let above = |px: f64, py: f64| map.at(px, py).is_some_and(|v| f64::from(v) > h / 2.0);
-            let extent = |dx: f64, dy: f64| {
-                let step = g.resolution;
-                let (mut lo, mut hi) = (0.0, 0.0);
-                while above(x - (lo + step) * dx, y - (lo + step) * dy) && lo < 1.0 {
-                    lo += step;
-                }
-                while above(x + (hi + step) * dx, y + (hi + step) * dy) && hi < 1.0 {
-                    hi += step;
-                }
-                above(x, y).then_some(lo + hi + step)
-            };
-            let err = |m: Option<f64>, t: f64| m.map(|m| 100.0 * (m - t) / t);
-            let (ml, mw) = (extent(1.0, 0.0), extent(0.0, 1.0));
-            Some(json!({
-                "name": o.get("name"),
-                "true_m": {"length": l, "width": w, "height": h},
-                "map_m": {"length": ml, "width": mw, "height": height},
-                "error_percent": {"length": err(ml, l), "width": err(mw, w), "height": err(height, h)},
-            }))
-        })
-        .collect()
-}
-
-/// The simulator's mixed returns (`mixed.json` beside the log: per scan, the beams whose
-/// return is mixed) against what the filters removed: how many there were, how many the
-/// filters removed, how many good returns they removed with them, and the cells the mixed
-/// returns landed in.
-fn mixed_truth(
-    scans: &[Scan],
-    filtered: &[Scan],
-    mixed: &[Vec<usize>],
-    g: stride_core::grid::GridGeometry,
-    max_range_m: f64,
-) -> (usize, usize, usize, Vec<(usize, usize)>) {
-    let (mut n, mut caught, mut good_removed, mut cells) = (0, 0, 0, Vec::new());
-    for ((s, f), m) in scans.iter().zip(filtered).zip(mixed) {
-        for i in 0..s.ranges.len() {
-            if !s.valid(i) || s.ranges.get(i).is_some_and(|&r| r > max_range_m) {
-                continue;
-            }
-            let is_mixed = m.contains(&i);
-            let removed = !f.valid(i);
-            if is_mixed {
-                n += 1;
-                caught += usize::from(removed);
-                if let Some(p) = s.p_world(i) {
-                    cells.extend(g.cell_of(p.x, p.y));
-                }
-            } else {
-                good_removed += usize::from(removed);
-            }
-        }
-    }
-    (n, caught, good_removed, cells)
-}
-
-/// The per-cell median of every return (the naive reference), and the cells seen: cells
-/// with a return within 3 cm of the true surface.
-fn naive_and_seen(
-    scans: &[Scan],
-    g: stride_core::grid::GridGeometry,
-    truth: Option<&Grid<f32>>,
-    max_range_m: f64,
-) -> (Grid<f32>, Grid<f32>) {
-    let mut cells: Vec<Vec<(f32, f32)>> = vec![Vec::new(); g.len()];
-    let mut seen = Grid::filled(g, f32::NAN);
-    for s in scans {
-        for i in 0..s.ranges.len() {
-            let Some(p) = s.p_world(i) else { continue };
-            if s.ranges.get(i).is_none_or(|&r| r > max_range_m) {
-                continue;
-            }
-            let Some((r, c)) = g.cell_of(p.x, p.y) else {
-                continue;
-            };
-            let Some(k) = g.index(r, c) else { continue };
-            if let Some(v) = cells.get_mut(k) {
-                v.push((p.z as f32, 1.0));
-            }
-            let on_surface = truth
-                .and_then(|t| t.sample_bilinear(p.x, p.y))
-                .is_some_and(|t| (f64::from(t) - p.z).abs() <= 0.03);
-            if on_surface {
-                if let Some(v) = seen.get_mut(r, c) {
-                    *v = 1.0;
-                }
-            }
-        }
-    }
-    let naive = cells
-        .iter_mut()
-        .map(|v| {
-            if v.is_empty() {
-                f32::NAN
-            } else {
-                weighted_median(v)
-            }
-        })
-        .collect();
-    (
-        Grid::from_vec(g, naive).unwrap_or_else(|| Grid::filled(g, f32::NAN)),
-        seen,
-    )
-}
-
 pub fn map2d(a: Map2dArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let mut config = a.config()?;
@@ -480,12 +285,30 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
         }
         None => None,
     };
-    let objects: Vec<Value> = match a.scans.parent().map(|d| d.join("objects.json")) {
+    let objects: Vec<(String, KnownObject)> = match a.scans.parent().map(|d| d.join("objects.json"))
+    {
         Some(p) if p.is_file() => {
             let text =
                 std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
-            serde_json::from_str(&text)
-                .with_context(|| format!("{}: not a list of objects", p.display()))?
+            let list: Vec<Value> = serde_json::from_str(&text)
+                .with_context(|| format!("{}: not a list of objects", p.display()))?;
+            list.into_iter()
+                .map(|v| {
+                    let name = v
+                        .get("name")
+                        .and_then(Value::as_str)
+                        .unwrap_or("?")
+                        .to_owned();
+                    serde_json::from_value::<KnownObject>(v)
+                        .map(|o| (name, o))
+                        .with_context(|| {
+                            format!(
+                                "{}: an object without x, y, length_m, width_m, height_m",
+                                p.display()
+                            )
+                        })
+                })
+                .collect::<Result<_>>()?
         }
         _ => Vec::new(),
     };
@@ -495,7 +318,20 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
             "all_cells": compare(m, t),
             "over_seen": compare_over_seen(m, &seen, t, 0.02, 0.02),
             "over_swept": compare_over_seen(m, &swept, t, 0.02, 0.02),
-            "objects": object_table(m, &objects),
+            "objects": objects.iter().map(|(name, o)| {
+                let size = measure_object(m, o);
+                let err = |m: Option<f64>, t: f64| m.map(|m| 100.0 * (m - t) / t);
+                json!({
+                    "name": name,
+                    "true_m": {"length": o.length_m, "width": o.width_m, "height": o.height_m},
+                    "map_m": {"length": size.length_m, "width": size.width_m, "height": size.height_m},
+                    "error_percent": {
+                        "length": err(size.length_m, o.length_m),
+                        "width": err(size.width_m, o.width_m),
+                        "height": err(size.height_m, o.height_m),
+                    },
+                })
+            }).collect::<Vec<_>>(),
         })
     };
     let mean_certainty = |cells: &[(usize, usize)]| {

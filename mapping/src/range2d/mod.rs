@@ -9,6 +9,8 @@
 //! * [`certainty`]: the elevation and certainty grids (eqs. 9-11, optional CAS filter).
 //! * [`mapper`]: the whole update over a sequence of scans.
 //! * [`mixed`]: mixed-measurement removal (range clustering, eq. 12's three-scan analysis).
+//! * [`yardstick`]: what a scan map is judged against (naive median, cells seen and swept,
+//!   marked mixed returns, object sizes).
 //!
 //! Scans with their poses are [`stride_core::scan::Scan`]s.
 
@@ -17,3 +19,4 @@ pub mod mapper;
 pub mod mixed;
 pub mod plausibility;
 pub mod sensors;
+pub mod yardstick;
