@@ -7,6 +7,7 @@ mod map;
 mod map_reference;
 mod mcap;
 mod octomap;
+mod scans;
 mod slam;
 mod synth;
 
@@ -32,6 +33,9 @@ pub enum BenchCommand {
     /// Frames per second read from MCAP logs (raw, zstd, PNG) converted from a TUM folder,
     /// against reading the folder itself.
     Mcap(mcap::McapBenchArgs),
+    /// Paper 003's map update per 683-beam scan on a simulated walk, against a one-pass
+    /// reference loop over the same returns.
+    Scans(scans::ScansBenchArgs),
 }
 
 pub fn run(cmd: BenchCommand) -> Result<()> {
@@ -42,6 +46,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Map(a) => map::bench_map(a),
         BenchCommand::Ba(a) => ba::bench_ba(a),
         BenchCommand::Mcap(a) => mcap::bench_mcap(a),
+        BenchCommand::Scans(a) => scans::bench_scans(a),
     }
 }
 
