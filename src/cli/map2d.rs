@@ -372,6 +372,8 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
     write_layer(&dir.join("elevation.npy"), &elevation)?;
     write_layer(&dir.join("certainty.npy"), &certainty)?;
     write_layer(&dir.join("naive_median.npy"), &naive)?;
+    write_layer(&dir.join("seen.npy"), &seen)?;
+    write_layer(&dir.join("swept.npy"), &swept)?;
     write_header(&dir.join("grid.json"), &g)?;
     let png = relief_png(&elevation, 1200).map_err(anyhow::Error::msg)?;
     write_atomic(&dir.join("elevation.png"), &png)?;
