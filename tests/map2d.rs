@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{report, run, run_ok, scratch};
+use common::{mcap_python, report, run, run_ok, scratch};
 use serde_json::Value;
 use std::path::Path;
 
@@ -171,5 +171,62 @@ fn a_walk_over_rough_terrain_beats_the_naive_median_over_the_swept_cells() {
         "{}",
         r["scan_update_ms_median"]
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn scans_from_an_mcap_log_map_as_the_text_log_does() {
+    let dir = scratch("mcap");
+    let sim = dir.join("sim");
+    run_ok(&[
+        "scans",
+        "--scene",
+        "rail",
+        "--mcap",
+        "--out",
+        sim.to_str().unwrap(),
+    ]);
+    let text = map(&sim.join("scans.txt"), &dir.join("text"), &[]);
+    let log = map(&sim.join("scans.mcap"), &dir.join("mcap"), &[]);
+    assert_eq!(log["scans_without_pose"], 0);
+    assert_eq!(text["stats"]["returns"], log["stats"]["returns"]);
+    let rmse = |r: &Value| num(&r["map"]["over_seen"]["rmse_m"]);
+    assert!(
+        (rmse(&text) - rmse(&log)).abs() < 1e-4,
+        "{} vs {}",
+        rmse(&text),
+        rmse(&log)
+    );
+    // A wrong fixed frame is an error that lists the log's transforms.
+    let out = run(&[
+        "map2d",
+        "--scans",
+        sim.join("scans.mcap").to_str().unwrap(),
+        "--tf-frame",
+        "map",
+        "--out",
+        dir.join("never").to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no transform from map") && err.contains("world -> laser"),
+        "{err}"
+    );
+    // The Python mcap packages read the LaserScans stride wrote.
+    let Some(python) = mcap_python() else { return };
+    let peer = concat!(env!("CARGO_MANIFEST_DIR"), "/scripts/peers/mcap_peer.py");
+    let o = std::process::Command::new(&python)
+        .args([peer, "read", sim.join("scans.mcap").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let c = &j["channels"]["/scan"];
+    assert_eq!(
+        (c["schema"].as_str(), c["count"].as_u64()),
+        (Some("sensor_msgs/msg/LaserScan"), Some(161))
+    );
+    assert_eq!(c["first"]["beams"], 683);
+    assert!(num(&c["first"]["returns"]) > 300.0);
     std::fs::remove_dir_all(&dir).unwrap();
 }

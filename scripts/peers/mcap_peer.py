@@ -195,6 +195,10 @@ def read(path):
                                               t.transform.translation.z],
                               "rotation": [t.transform.rotation.x, t.transform.rotation.y,
                                            t.transform.rotation.z, t.transform.rotation.w]}
+            elif schema.name == "sensor_msgs/msg/LaserScan":
+                c["first"] = {"beams": len(m.ranges), "angle_min": m.angle_min,
+                              "angle_increment": m.angle_increment,
+                              "returns": sum(1 for r in m.ranges if r == r)}
             elif schema.name == "sensor_msgs/msg/Imu":
                 a = m.linear_acceleration
                 c["first"] = {"linear_acceleration": [a.x, a.y, a.z]}

@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use stride_core::grid::Grid;
 use stride_core::scan::Scan;
 use stride_datasets::grid_file::{read_grid, relief_png, write_header, write_layer};
+use stride_datasets::mcap::laser::{read_laser_scans, write_laser_scans};
 use stride_datasets::scan_log::{read_scan_log, write_scan_log};
 use stride_datasets::synth::scanner::{walk_scans, RailRun, ScannerSim, MESSOR_TILT_RAD};
 use stride_datasets::synth::{Synth, SynthConfig};
@@ -51,6 +52,10 @@ pub struct ScansArgs {
     /// Half-angle of a beam's footprint (mrad): wider footprints straddle more edges.
     #[arg(long, default_value_t = 3.0)]
     pub footprint_mrad: f64,
+    /// Also write the scans as an MCAP log (scans.mcap: sensor_msgs/LaserScan on /scan in
+    /// frame `laser`, its pose as a transform world -> laser on /tf).
+    #[arg(long)]
+    pub mcap: bool,
     /// Seconds of walking (scene walk; 10 scans a second).
     #[arg(long, default_value_t = 10.0)]
     pub seconds: f64,
@@ -106,6 +111,9 @@ pub fn scans(a: ScansArgs) -> Result<()> {
     let mixed: Vec<Vec<usize>> = marked.iter().map(|(_, m)| m.clone()).collect();
     let scans: Vec<Scan> = marked.into_iter().map(|(s, _)| s).collect();
     write_scan_log(&dir.join("scans.txt"), &scans)?;
+    if a.mcap {
+        write_laser_scans(&dir.join("scans.mcap"), &scans, "/scan", "world", "laser")?;
+    }
     write_atomic(
         &dir.join("mixed.json"),
         serde_json::to_string(&mixed)?.as_bytes(),
@@ -150,9 +158,18 @@ pub enum SensorArg {
 
 #[derive(Debug, Args)]
 pub struct Map2dArgs {
-    /// The scan log (`t tx ty tz qx qy qz qw angle_min angle_increment n r_0 ...`).
+    /// The scan log (`t tx ty tz qx qy qz qw angle_min angle_increment n r_0 ...`), or an
+    /// MCAP log (a file ending in .mcap) of sensor_msgs/LaserScan with their poses as
+    /// transforms.
     #[arg(long)]
     pub scans: PathBuf,
+    /// The LaserScan topic of an MCAP --scans.
+    #[arg(long, default_value = "/scan")]
+    pub scan_topic: String,
+    /// The fixed frame of an MCAP --scans: each scan is placed by the transform from it to
+    /// the scan's frame (world z up).
+    #[arg(long, default_value = "world")]
+    pub tf_frame: String,
     /// Output folder: elevation.npy, certainty.npy, grid.json, elevation.png, report.json.
     #[arg(long)]
     pub out: PathBuf,
@@ -231,7 +248,11 @@ impl Map2dArgs {
 pub fn map2d(a: Map2dArgs) -> Result<()> {
     crate::cli::check_out_dir("--out", &a.out, a.overwrite)?;
     let mut config = a.config()?;
-    let mut scans = read_scan_log(&a.scans)?;
+    let (mut scans, unplaced) = if stride_datasets::sequence::is_mcap(&a.scans) {
+        read_laser_scans(&a.scans, &a.scan_topic, &a.tf_frame)?
+    } else {
+        (read_scan_log(&a.scans)?, 0)
+    };
     // Raw readings are corrected first, so that every map and yardstick below sees ranges.
     let uncalibrated = if a.raw_urg {
         calibrate_raw(&mut scans)
@@ -356,6 +377,7 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
         })
     });
     let report = json!({
+        "scans_without_pose": unplaced,
         "mixed_returns": mixed_report,
         "scans": n_scans,
         "grid": {"rows": g.rows, "cols": g.cols, "resolution_m": g.resolution},

@@ -20,6 +20,7 @@ pub mod cdr;
 pub mod convert;
 pub mod foxglove;
 pub mod images;
+pub mod laser;
 pub mod ros2;
 mod scan;
 pub mod schema;
