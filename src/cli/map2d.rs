@@ -11,6 +11,7 @@ use stride_datasets::grid_file::{read_grid, relief_png, write_header, write_laye
 use stride_datasets::mcap::laser::{read_laser_scans, write_laser_scans};
 use stride_datasets::scan_log::{read_scan_log, write_scan_log};
 use stride_datasets::synth::scanner::{walk_scans, RailRun, ScannerSim, MESSOR_TILT_RAD};
+use stride_datasets::synth::stripe::StripeSim;
 use stride_datasets::synth::{Synth, SynthConfig};
 use stride_mapping::metrics::{compare, compare_over_seen};
 use stride_mapping::range2d::certainty::{CertaintyConfig, ElevationRule};
@@ -43,6 +44,10 @@ pub struct ScansArgs {
     /// The scene.
     #[arg(long, value_enum, default_value = "rail")]
     pub scene: SceneArg,
+    /// The sensor: `urg` (the URG-04LX, 0.26 m up, tilted 35 degrees, as on Messor) or
+    /// `stripe` (the laser-stripe camera, 0.174 m up, tilted 10 degrees, as on Ragno).
+    #[arg(long, value_enum, default_value = "urg")]
+    pub sensor: SensorArg,
     /// Write raw URG readings (with the systematic error eq. 4 corrects).
     #[arg(long)]
     pub raw: bool,
@@ -93,7 +98,24 @@ pub fn scans(a: ScansArgs) -> Result<()> {
     let (marked, truth, objects) = match a.scene {
         SceneArg::Rail => {
             let run = RailRun::new();
-            (run.scans(&sim), run.truth(), json!(run.objects))
+            let scans = match a.sensor {
+                SensorArg::Urg => run.scans(&sim),
+                SensorArg::Stripe => {
+                    let stripe = StripeSim {
+                        seed: a.seed,
+                        ..StripeSim::default()
+                    };
+                    // The stripe sensor has no mixed returns to mark.
+                    run.stripe_scans(&stripe)
+                        .into_iter()
+                        .map(|s| (s, Vec::new()))
+                        .collect()
+                }
+            };
+            (scans, run.truth(), json!(run.objects))
+        }
+        SceneArg::Walk if a.sensor == SensorArg::Stripe => {
+            anyhow::bail!("the stripe sensor is simulated on the rail run only (--scene rail)")
         }
         SceneArg::Walk => {
             let fps = 30.0;

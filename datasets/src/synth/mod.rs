@@ -24,6 +24,7 @@ pub mod motion;
 pub mod render;
 pub mod scanner;
 pub mod scene;
+pub mod stripe;
 pub mod terrain;
 pub mod texture;
 

@@ -100,7 +100,17 @@ impl Default for ScannerSim {
 const EDGE_M: f64 = 0.02;
 
 impl ScannerSim {
-    /// The first hit (m) along the unit ray, of the scene and the cylinders.
+    /// The first hit (m) along the unit ray `o + t d`, of the scene and the cylinders.
+    pub fn first_hit(
+        scene: &Scene,
+        cylinders: &[Cylinder],
+        o: Vector3<f64>,
+        d: Vector3<f64>,
+        t_max: f64,
+    ) -> Option<f64> {
+        Self::trace(scene, cylinders, [o.x, o.y, o.z], d, t_max)
+    }
+
     fn trace(
         scene: &Scene,
         cylinders: &[Cylinder],
@@ -398,6 +408,30 @@ impl RailRun {
             .map(|k| {
                 let pose = tilted_pose(0.01 * k as f64, 0.0, MESSOR_HEIGHT_M, MESSOR_TILT_RAD);
                 sim.scan_marked(
+                    &self.scene,
+                    &self.cylinders,
+                    &pose,
+                    0.1 * k as f64,
+                    k as u64,
+                )
+            })
+            .collect()
+    }
+
+    /// The scans of the laser-stripe camera on the same rail (Ragno's mounting: 0.174 m up,
+    /// tilted 10 degrees), from x = 0.3 to 1.6 m in 10 mm steps, so that the sheet sweeps
+    /// the objects as the scanner's beams do.
+    pub fn stripe_scans(&self, sim: &super::stripe::StripeSim) -> Vec<Scan> {
+        (0..=130)
+            .map(|k| {
+                let x = 0.3 + 0.01 * k as f64;
+                let pose = super::stripe::stripe_camera_pose(
+                    x,
+                    0.0,
+                    super::stripe::RAGNO_CAMERA_HEIGHT_M,
+                    super::stripe::RAGNO_TILT_RAD,
+                );
+                sim.scan(
                     &self.scene,
                     &self.cylinders,
                     &pose,

@@ -100,7 +100,8 @@ pub struct MeasuredSize {
     pub length_m: Option<f64>,
     /// Along y, likewise.
     pub width_m: Option<f64>,
-    /// The median height of the cells inside the true footprint.
+    /// The median height of the cells inside the true footprint (when the map knows at
+    /// least half of them).
     pub height_m: Option<f64>,
 }
 
@@ -108,10 +109,12 @@ pub struct MeasuredSize {
 pub fn measure_object(map: &Grid<f32>, o: &KnownObject) -> MeasuredSize {
     let g = map.geometry;
     let mut inside: Vec<(f32, f32)> = Vec::new();
+    let mut footprint = 0usize;
     for r in 0..g.rows {
         for c in 0..g.cols {
             let (cx, cy) = g.center(r, c);
             if (cx - o.x).abs() <= o.length_m / 2.0 && (cy - o.y).abs() <= o.width_m / 2.0 {
+                footprint += 1;
                 if let Some(v) = map.get(r, c).filter(|v| !v.is_nan()) {
                     inside.push((v, 1.0));
                 }
@@ -136,7 +139,8 @@ pub fn measure_object(map: &Grid<f32>, o: &KnownObject) -> MeasuredSize {
     MeasuredSize {
         length_m: extent(1.0, 0.0),
         width_m: extent(0.0, 1.0),
-        height_m: (!inside.is_empty()).then(|| f64::from(weighted_median(&mut inside))),
+        height_m: (!inside.is_empty() && 2 * inside.len() >= footprint)
+            .then(|| f64::from(weighted_median(&mut inside))),
     }
 }
 
