@@ -192,7 +192,8 @@ pub struct Map2dArgs {
     /// the scan's frame (world z up).
     #[arg(long, default_value = "world")]
     pub tf_frame: String,
-    /// Output folder: elevation.npy, certainty.npy, grid.json, elevation.png, report.json.
+    /// Output folder: elevation.npy, certainty.npy, grid.json, elevation.png, report.json,
+    /// report.html (and the yardsticks: naive_median.npy, seen.npy, swept.npy).
     #[arg(long)]
     pub out: PathBuf,
     /// The sensor.
@@ -289,7 +290,7 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
         Some(p) => Some(read_grid(p, None).context("reading the true terrain")?),
         None => None,
     };
-    let g = covering_geometry(&scans, a.resolution, 0.02)
+    let g = covering_geometry(&scans, a.resolution, 0.02, a.max_range)
         .with_context(|| format!("{}: no scan has a return", a.scans.display()))?;
     let (naive, seen) = naive_and_seen(&scans, g, truth.as_ref(), a.max_range);
     let scans_for_swept = scans.clone();
@@ -425,8 +426,139 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
         &dir.join("report.json"),
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
+    let path: Vec<(f64, f64)> = scans_for_swept
+        .iter()
+        .map(|s| {
+            let t = s.world_from_sensor.translation.vector;
+            (t.x, t.y)
+        })
+        .collect();
+    html_report(
+        dir,
+        &a,
+        &report,
+        &elevation,
+        &certainty,
+        &naive,
+        truth.as_ref(),
+        &path,
+    )?;
     staged.publish()?;
     print_summary(&report, &stats, &a.out)
+}
+
+/// report.html: the map, its certainty, its error and the naive median as figures, the
+/// scores and the objects as tables.
+#[allow(clippy::too_many_arguments)]
+fn html_report(
+    dir: &Path,
+    a: &Map2dArgs,
+    report: &Value,
+    elevation: &Grid<f32>,
+    certainty: &Grid<f32>,
+    naive: &Grid<f32>,
+    truth: Option<&Grid<f32>>,
+    path: &[(f64, f64)],
+) -> Result<()> {
+    use crate::cli::map_figures::{elevation_chart, error_chart, layer_chart};
+    use stride_eval::plot::render;
+    let mut rep = stride_eval::report::Report::new("stride map2d: terrain map from 2-D scans");
+    let st = &report["stats"];
+    rep.paragraph(format!(
+        "Scans {} ({}), sensor {}; {} returns, {} dropped as isolated clusters, {} by the three-scan analysis (eq. 12), {} raw readings outside eq. 4's interval; {} cells filled by eq. 11; {:.3} ms per scan (median). World frame, z up; cells of {} m.",
+        a.scans.display(),
+        report["scans"],
+        report["sensor"].as_str().unwrap_or("?"),
+        st["returns"],
+        st["dropped_clusters"],
+        st["dropped_three_scan"],
+        st["uncalibrated"],
+        st["finish"]["filled"],
+        report["scan_update_ms_median"].as_f64().unwrap_or(f64::NAN),
+        a.resolution
+    ));
+    // Cells never measured show grey (unknown), not as certainty 0.
+    let mut measured = certainty.clone();
+    for w in measured.as_mut_slice() {
+        if *w <= 0.0 {
+            *w = f32::NAN;
+        }
+    }
+    let mut charts = vec![
+        elevation_chart("Elevation (paper 003's map)", elevation, path)?,
+        layer_chart("Certainty (eq. 9)", &measured, "certainty", path)?,
+        elevation_chart("Naive per-cell median of the same returns", naive, path)?,
+    ];
+    if let Some(t) = truth {
+        charts.extend(error_chart(elevation, t, path)?);
+    }
+    rep.figure(
+        "maps",
+        render(&charts, 2, 540.0, 470.0),
+        "The map, its certainty grid, the naive median of the same returns, and the map's error against the true terrain; the line is the sensor's path. Grey: unknown.",
+    );
+    let mut rows = Vec::new();
+    for key in ["map", "naive_median"] {
+        for over in ["over_seen", "over_swept"] {
+            let s = &report[key][over];
+            if s.is_null() {
+                continue;
+            }
+            let mm = |k: &str| {
+                s[k].as_f64()
+                    .map_or("-".into(), |v| format!("{:.1}", v * 1e3))
+            };
+            rows.push(vec![
+                key.replace('_', " "),
+                over.replace("over_", "cells "),
+                s["coverage"]
+                    .as_f64()
+                    .map_or("-".into(), |v| format!("{v:.3}")),
+                mm("rmse_m"),
+                mm("rmse_near_steps_m"),
+                mm("rmse_away_m"),
+            ]);
+        }
+    }
+    if !rows.is_empty() {
+        rep.table(
+            &[
+                "map",
+                "scored over",
+                "coverage",
+                "RMSE (mm)",
+                "near steps",
+                "away",
+            ],
+            rows,
+        );
+    }
+    let objects: Vec<Vec<String>> = report["map"]["objects"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .map(|o| {
+            let mm = |k: &str, v: &str| {
+                o[k][v]
+                    .as_f64()
+                    .map_or("not seen".into(), |x| format!("{:.0}", x * 1e3))
+            };
+            vec![
+                o["name"].as_str().unwrap_or("?").to_owned(),
+                format!("{} / {}", mm("map_m", "length"), mm("true_m", "length")),
+                format!("{} / {}", mm("map_m", "width"), mm("true_m", "width")),
+                format!("{} / {}", mm("map_m", "height"), mm("true_m", "height")),
+            ]
+        })
+        .collect();
+    if !objects.is_empty() {
+        rep.table(
+            &["object (mm, map / truth)", "length", "width", "height"],
+            objects,
+        );
+    }
+    rep.write(dir).context("writing report.html")?;
+    Ok(())
 }
 
 fn print_summary(report: &Value, stats: &ScanMapStats, out: &Path) -> Result<()> {

@@ -43,6 +43,31 @@ pub fn elevation_chart(title: &str, elevation: &Grid<f32>, path: &[(f64, f64)]) 
     ))
 }
 
+/// Any layer (certainty, counts) as a heat map from 0 to its largest value, on metric
+/// axes with a colour bar labelled `label`, and the path.
+pub fn layer_chart(
+    title: &str,
+    layer: &Grid<f32>,
+    label: &str,
+    path: &[(f64, f64)],
+) -> Result<Chart> {
+    let (_, extent) = preview_geometry(layer, MAX_SIDE_PX);
+    let top = layer
+        .min_max()
+        .map_or(1.0, |(_, hi)| f64::from(hi).max(1e-6));
+    let png = heat_png(layer, (0.0, top), MAX_SIDE_PX).map_err(anyhow::Error::msg)?;
+    Ok(map_chart(
+        title,
+        Raster {
+            label: label.into(),
+            png,
+            extent,
+            range: (0.0, top),
+        },
+        path,
+    ))
+}
+
 /// A map image from above on metric world axes, with its colour bar, a scale bar and the
 /// walked path (world x-y, m).
 fn map_chart(title: &str, raster: Raster, path: &[(f64, f64)]) -> Chart {
@@ -51,7 +76,7 @@ fn map_chart(title: &str, raster: Raster, path: &[(f64, f64)]) -> Chart {
         x_label: "world x (m)".into(),
         y_label: "world y (m)".into(),
         series: vec![
-            Series::line("walked path (camera)", PALETTE[1], path.to_vec()),
+            Series::line("walked path (sensor)", PALETTE[1], path.to_vec()),
             scale_bar(raster.extent),
         ],
         raster: Some(raster),

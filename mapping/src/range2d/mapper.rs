@@ -232,12 +232,20 @@ pub fn map_scans(
     Ok((elevation, certainty, stats))
 }
 
-/// The grid covering every return of `scans` with `margin_m` to spare, cells of
-/// `resolution_m`.
-pub fn covering_geometry(scans: &[Scan], resolution_m: f64, margin_m: f64) -> Option<GridGeometry> {
+/// The grid covering every return of `scans` within `max_range_m` of its sensor, with
+/// `margin_m` to spare, cells of `resolution_m`.
+pub fn covering_geometry(
+    scans: &[Scan],
+    resolution_m: f64,
+    margin_m: f64,
+    max_range_m: f64,
+) -> Option<GridGeometry> {
     let (mut x0, mut y0, mut x1, mut y1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for s in scans {
         for i in 0..s.ranges.len() {
+            if s.ranges.get(i).is_some_and(|&r| r > max_range_m) {
+                continue;
+            }
             if let Some(p) = s.p_world(i) {
                 x0 = x0.min(p.x);
                 y0 = y0.min(p.y);
@@ -296,7 +304,7 @@ mod tests {
     #[test]
     fn a_flat_floor_maps_flat_and_certain() {
         let scans = sweep(60);
-        let g = covering_geometry(&scans, 0.01, 0.0).unwrap();
+        let g = covering_geometry(&scans, 0.01, 0.0, 1.5).unwrap();
         let (h, c, stats) = map_scans(scans, g, &ScanMapConfig::default()).unwrap();
         assert_eq!(stats.scans, 60);
         assert_eq!(stats.dropped_clusters + stats.dropped_three_scan, 0);
@@ -327,7 +335,7 @@ mod tests {
         }
         // A raw 1.2 m is beyond eq. 4's 1000 mm.
         scans[0].ranges[341] = 1.2;
-        let g = covering_geometry(&sweep(3), 0.01, 0.1).unwrap();
+        let g = covering_geometry(&sweep(3), 0.01, 0.1, 1.5).unwrap();
         let config = ScanMapConfig {
             range_error: RangeError::Urg {
                 sigmas: 2.0,

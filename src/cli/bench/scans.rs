@@ -52,7 +52,8 @@ pub fn bench_scans(a: ScansBenchArgs) -> Result<()> {
         .into_iter()
         .map(|(s, _)| s)
         .collect();
-    let g = covering_geometry(&scans, 0.01, 0.02).context("no return in the simulated scans")?;
+    let g = covering_geometry(&scans, 0.01, 0.02, ScanMapConfig::default().max_range_m)
+        .context("no return in the simulated scans")?;
     let config = ScanMapConfig::default();
     let no_filter = ScanMapConfig {
         mixed: None,
