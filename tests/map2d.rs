@@ -165,7 +165,12 @@ fn a_walk_over_rough_terrain_beats_the_naive_median_over_the_swept_cells() {
     assert!(s("map", "coverage") > s("naive_median", "coverage") + 0.05);
     assert!(s("map", "rmse_m") < s("naive_median", "rmse_m"));
     let seen = |k: &str| num(&r[k]["over_seen"]["rmse_m"]);
-    assert!(seen("map") < seen("naive_median"), "{} vs {}", seen("map"), seen("naive_median"));
+    assert!(
+        seen("map") < seen("naive_median"),
+        "{} vs {}",
+        seen("map"),
+        seen("naive_median")
+    );
     assert!(
         num(&r["scan_update_ms_median"]) < 1.0,
         "{}",

@@ -89,6 +89,8 @@ pub struct PhantomScore {
     pub flat_cells: usize,
     /// Of those, cells higher than the ground truth by more than `threshold_m`.
     pub phantoms: usize,
+    /// And cells lower than it by more than `threshold_m` (false pits).
+    pub pits: usize,
     /// Largest height above the ground truth over flat cells (m).
     pub max_excess_m: f64,
     /// The threshold (m).
@@ -130,6 +132,7 @@ pub fn phantoms(
     let mut out = PhantomScore {
         flat_cells: 0,
         phantoms: 0,
+        pits: 0,
         max_excess_m: f64::NAN,
         threshold_m,
     };
@@ -152,6 +155,7 @@ pub fn phantoms(
             let excess = f64::from(h) - f64::from(t);
             out.flat_cells += 1;
             out.phantoms += usize::from(excess > threshold_m);
+            out.pits += usize::from(excess < -threshold_m);
             out.max_excess_m = if out.max_excess_m.is_nan() {
                 excess
             } else {

@@ -13,7 +13,7 @@ use stride_datasets::scan_log::{read_scan_log, write_scan_log};
 use stride_datasets::synth::scanner::{walk_scans, RailRun, ScannerSim, MESSOR_TILT_RAD};
 use stride_datasets::synth::stripe::StripeSim;
 use stride_datasets::synth::{Synth, SynthConfig};
-use stride_mapping::metrics::{compare, compare_over_seen};
+use stride_mapping::metrics::{compare, compare_over_seen, phantoms};
 use stride_mapping::range2d::certainty::{CertaintyConfig, ElevationRule};
 use stride_mapping::range2d::mapper::{
     calibrate_raw, covering_geometry, filter_scans, map_scans, RangeError, ScanMapConfig,
@@ -362,6 +362,9 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
             "all_cells": compare(m, t),
             "over_seen": compare_over_seen(m, &seen, t, 0.02, 0.02),
             "over_swept": compare_over_seen(m, &swept, t, 0.02, 0.02),
+            // Artifacts: false peaks and pits of more than 2 cm over ground that is flat
+            // (within 2 cm) for 2 cm around, where a cell cannot honestly hold two heights.
+            "artifacts": phantoms(m, t, 0.02, 0.02, 0.02),
             "objects": objects.iter().map(|(name, o)| {
                 let size = measure_object(m, o);
                 let err = |m: Option<f64>, t: f64| m.map(|m| 100.0 * (m - t) / t);
@@ -533,6 +536,30 @@ fn html_report(
             rows,
         );
     }
+    let artifacts: Vec<Vec<String>> = ["map", "naive_median"]
+        .iter()
+        .filter(|k| !report[**k]["artifacts"].is_null())
+        .map(|k| {
+            let a = &report[*k]["artifacts"];
+            vec![
+                k.replace('_', " "),
+                a["flat_cells"].to_string(),
+                a["phantoms"].to_string(),
+                a["pits"].to_string(),
+            ]
+        })
+        .collect();
+    if !artifacts.is_empty() {
+        rep.table(
+            &[
+                "map",
+                "cells over flat ground",
+                "false peaks > 2 cm",
+                "false pits > 2 cm",
+            ],
+            artifacts,
+        );
+    }
     let objects: Vec<Vec<String>> = report["map"]["objects"]
         .as_array()
         .into_iter()
@@ -595,6 +622,13 @@ fn print_summary(report: &Value, stats: &ScanMapStats, out: &Path) -> Result<()>
                     s["rmse_away_m"].as_f64().unwrap_or(f64::NAN) * 1e3,
                 )?;
             }
+        }
+        let art = &report[key]["artifacts"];
+        if !art.is_null() {
+            crate::outln!(
+                "{key:<13} artifacts over flat ground: {} false peaks and {} false pits of more than 2 cm among {} cells",
+                art["phantoms"], art["pits"], art["flat_cells"]
+            )?;
         }
         for o in report[key]["objects"].as_array().into_iter().flatten() {
             let mm = |k: &str, v: &str| {
