@@ -1,7 +1,8 @@
 //! TUM RGB-D folders to MCAP logs of ROS 2 messages, and back, timestamps and pixels exact.
 //!
 //! TUM to MCAP: every line of `rgb.txt` and `depth.txt` becomes an image message stamped
-//! with the line's time, digit for digit (`header.stamp` and `log_time`); the camera a
+//! with the line's time to the microsecond (TUM's six decimals, digit for digit;
+//! `header.stamp` and `log_time`); the camera a
 //! `CameraInfo` message on [`DEFAULT_CAMERA_INFO_TOPIC`]; `accelerometer.txt` `Imu`
 //! messages (linear acceleration only, in the camera's frame); `groundtruth.txt`
 //! `TFMessage`s from [`GROUNDTRUTH_PARENT`] to [`GROUNDTRUTH_CHILD`] on [`TF_TOPIC`].
@@ -26,8 +27,7 @@ use super::{
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use crate::png_io::{decode_depth_raw, decode_rgb, encode_depth_u16, encode_rgb};
-use crate::text::{data_lines, read_text};
-use crate::tum::TumSequence;
+use crate::tum::{read_image_list, TumSequence};
 use std::collections::BTreeMap;
 use std::io::{BufWriter, Write};
 use std::path::Path;
@@ -71,30 +71,6 @@ pub struct ConvertCounts {
 
 /// The frame id of the colour camera's optical frame in written messages.
 pub const CAMERA_FRAME_ID: &str = "camera_rgb_optical_frame";
-
-/// A list file's stamps as written (exact) with their files, in file order.
-fn stamped_files(path: &Path) -> Result<Vec<(Time, String)>, DatasetError> {
-    let text = read_text(path)?;
-    let mut out = Vec::new();
-    for dl in data_lines(&text) {
-        let [stamp, file] = dl.exact_fields::<2>().map_err(|n| {
-            DatasetError::parse(
-                path,
-                dl.line,
-                format!("expected 2 fields (timestamp filename), found {n}"),
-            )
-        })?;
-        let t = Time::parse_decimal(stamp).ok_or_else(|| {
-            DatasetError::parse(
-                path,
-                dl.line,
-                format!("timestamp '{stamp}' is not a decimal number of seconds"),
-            )
-        })?;
-        out.push((t, file.to_owned()));
-    }
-    Ok(out)
-}
 
 fn mcap_err(path: &Path, e: ::mcap::McapError) -> DatasetError {
     DatasetError::invalid(path, format!("writing MCAP: {e}"))
@@ -150,8 +126,15 @@ pub fn tum_to_mcap(
     compression: Compression,
 ) -> Result<ConvertCounts, DatasetError> {
     let seq = TumSequence::open(dir, camera, crate::tum::AssociationOptions::default())?;
-    let rgb = stamped_files(&dir.join("rgb.txt"))?;
-    let depth = stamped_files(&dir.join("depth.txt"))?;
+    // The lists as the TUM reader reads them (a repeated stamp keeps the later line); stamps
+    // to the microsecond, which TUM's six decimals are exactly.
+    let stamped = |name: &str| -> Result<Vec<(Time, String)>, DatasetError> {
+        Ok(read_image_list(&dir.join(name))?
+            .into_iter()
+            .map(|(t, f)| (Time::from_seconds(t), f))
+            .collect())
+    };
+    let (rgb, depth) = (stamped("rgb.txt")?, stamped("depth.txt")?);
     let tmp = temp_path_for(out);
     let result = write_log(&seq, &rgb, &depth, &tmp, format, compression).and_then(|counts| {
         std::fs::rename(&tmp, out).map_err(|e| DatasetError::io(out, e))?;
