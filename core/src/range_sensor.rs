@@ -104,38 +104,91 @@ impl StripeSensor {
         Some(Point3::new(x, y, z))
     }
 
-    /// The covariance (m²) of the point at `(u, v)`: the input noises propagated through
-    /// eq. 1 by its Jacobian (central differences).
-    pub fn covariance(&self, u: f64, v: f64, noise: &StripeNoise) -> Option<Matrix3<f64>> {
-        let p = |du: f64, dv: f64, db: f64, dbeta: f64, dtau: f64| {
+    /// The displacements (camera frame, m) of the point at `(u, v)` under each input's
+    /// error, in the order u, v, b, beta, tau_c: eq. 1's Jacobian columns (central
+    /// differences) times `noise`. Eq. 8's sensor terms are the last four.
+    pub fn error_vectors(&self, u: f64, v: f64, noise: &StripeNoise) -> Option<[Vector3<f64>; 5]> {
+        let p = |h: [f64; 5]| {
             Self::eq1(
-                u + du,
-                v + dv,
-                self.baseline_m + db,
-                self.beta_rad + dbeta,
-                self.tau_c_rad + dtau,
+                u + h[0],
+                v + h[1],
+                self.baseline_m + h[2],
+                self.beta_rad + h[3],
+                self.tau_c_rad + h[4],
                 self.gamma_c_rad,
                 self.rows_px,
                 self.cols_px,
             )
             .map(|p| p.coords)
         };
-        let inputs: [(f64, [f64; 5]); 5] = [
-            (noise.u_px, [1e-3, 0.0, 0.0, 0.0, 0.0]),
-            (noise.v_px, [0.0, 1e-3, 0.0, 0.0, 0.0]),
-            (noise.baseline_m, [0.0, 0.0, 1e-6, 0.0, 0.0]),
-            (noise.beta_rad, [0.0, 0.0, 0.0, 1e-7, 0.0]),
-            (noise.tau_c_rad, [0.0, 0.0, 0.0, 0.0, 1e-7]),
+        let sigmas = [
+            noise.u_px,
+            noise.v_px,
+            noise.baseline_m,
+            noise.beta_rad,
+            noise.tau_c_rad,
         ];
-        let mut cov = Matrix3::zeros();
-        for (sigma, h) in inputs {
-            let step: f64 = h.iter().map(|x| x.abs()).sum();
-            let plus = p(h[0], h[1], h[2], h[3], h[4])?;
-            let minus = p(-h[0], -h[1], -h[2], -h[3], -h[4])?;
-            let column: Vector3<f64> = (plus - minus) / (2.0 * step) * sigma;
-            cov += column * column.transpose();
+        let steps = [1e-3, 1e-3, 1e-6, 1e-7, 1e-7];
+        let mut out = [Vector3::zeros(); 5];
+        for (k, (col, (sigma, step))) in out.iter_mut().zip(sigmas.iter().zip(steps)).enumerate() {
+            let mut h = [0.0; 5];
+            if let Some(x) = h.get_mut(k) {
+                *x = step;
+            }
+            let plus = p(h)?;
+            let minus = p(h.map(|x| -x))?;
+            *col = (plus - minus) / (2.0 * step) * *sigma;
         }
-        Some(cov)
+        Some(out)
+    }
+
+    /// The covariance (m²) of the point at `(u, v)`: the input noises (standard
+    /// deviations) propagated through eq. 1 by its Jacobian.
+    pub fn covariance(&self, u: f64, v: f64, noise: &StripeNoise) -> Option<Matrix3<f64>> {
+        Some(
+            self.error_vectors(u, v, noise)?
+                .iter()
+                .fold(Matrix3::zeros(), |c, e| c + e * e.transpose()),
+        )
+    }
+
+    /// The stripe pixel `(u, v)` at which a point of the light plane (camera frame) is seen:
+    /// eq. 1 inverted, `u = R_hor/2 (1 - x/(z tan gamma_c))`, `v = R_ver/2 (1 + y/(z tan
+    /// tau_c))`; `None` behind the camera.
+    pub fn pixel_of(&self, p_camera: &Point3<f64>) -> Option<(f64, f64)> {
+        (p_camera.z > 1e-9).then(|| {
+            (
+                self.cols_px / 2.0 * (1.0 - p_camera.x / (p_camera.z * self.gamma_c_rad.tan())),
+                self.rows_px / 2.0 * (1.0 + p_camera.y / (p_camera.z * self.tau_c_rad.tan())),
+            )
+        })
+    }
+
+    /// The light plane's frame in the camera frame (the frame stripe returns are written
+    /// in as scans): origin at the emitter (`y_c = -b`), x the sheet's central direction
+    /// (`(0, cot beta, 1)` normalised), y the camera's x axis, z their cross product.
+    pub fn camera_from_plane(&self) -> nalgebra::Isometry3<f64> {
+        let central = Vector3::new(0.0, 1.0 / self.beta_rad.tan(), 1.0).normalize();
+        let y = Vector3::x();
+        let z = central.cross(&y);
+        let r = nalgebra::Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[central, y, z]));
+        nalgebra::Isometry3::from_parts(
+            Vector3::new(0.0, -self.baseline_m, 0.0).into(),
+            nalgebra::UnitQuaternion::from_rotation_matrix(&r),
+        )
+    }
+
+    /// Paper 003's Ragno prototype: b = 120 mm, beta = 45 degrees, tau_c = 28.14 degrees,
+    /// gamma_c = 38.8 degrees, a VGA image.
+    pub fn ragno() -> Self {
+        Self {
+            baseline_m: 0.12,
+            beta_rad: 45f64.to_radians(),
+            tau_c_rad: 28.14f64.to_radians(),
+            gamma_c_rad: 38.8f64.to_radians(),
+            rows_px: 480.0,
+            cols_px: 640.0,
+        }
     }
 }
 
@@ -279,6 +332,18 @@ mod tests {
             ..s
         };
         assert!(steep.point(0.0, 480.0).is_none());
+    }
+
+    #[test]
+    fn pixels_invert_eq1_and_the_light_plane_frame_holds_its_points() {
+        let s = fig3();
+        let p = s.point(100.0, 300.0).unwrap();
+        let (u, v) = s.pixel_of(&p).unwrap();
+        assert_relative_eq!((u, v).0, 100.0, epsilon = 1e-9);
+        assert_relative_eq!(v, 300.0, epsilon = 1e-9);
+        // In the plane's frame a point of the sheet has z = 0.
+        let q = s.camera_from_plane().inverse() * p;
+        assert_relative_eq!(q.z, 0.0, epsilon = 1e-12);
     }
 
     #[test]

@@ -173,8 +173,9 @@ pub enum RuleArg {
 pub enum SensorArg {
     /// Hokuyo URG-04LX (range error 2 sigma of 10 mm up to 1 m, 1 % beyond).
     Urg,
-    /// A laser-stripe camera (b = 0.12 m, f = 600 px, stripe row error 0.5 px), its
-    /// returns expressed as beams in the light plane.
+    /// The laser-stripe camera of paper 003's Ragno (b = 0.12 m, beta = 45 degrees), its
+    /// returns expressed as beams in the light plane; eq. 8's errors: the stripe row 1 px,
+    /// b 1 mm, beta 0.2 degrees, tau_c 0.1 degrees.
     Stripe,
 }
 
@@ -255,11 +256,7 @@ impl Map2dArgs {
                     sigmas: 2.0,
                     raw: self.raw_urg,
                 },
-                SensorArg::Stripe => RangeError::Stripe {
-                    baseline_m: 0.12,
-                    focal_px: 600.0,
-                    row_px: 0.5,
-                },
+                SensorArg::Stripe => RangeError::ragno_stripe(),
             },
             mixed: (!self.no_mixed_pixel_filter).then(MixedConfig::default),
             max_range_m: self.max_range,

@@ -35,14 +35,7 @@ impl Default for StripeSim {
     /// gamma_c = 38.8 degrees, a VGA image; the stripe row found to 0.5 px.
     fn default() -> Self {
         Self {
-            sensor: StripeSensor {
-                baseline_m: 0.12,
-                beta_rad: 45f64.to_radians(),
-                tau_c_rad: 28.14f64.to_radians(),
-                gamma_c_rad: 38.8f64.to_radians(),
-                rows_px: 480.0,
-                cols_px: 640.0,
-            },
+            sensor: StripeSensor::ragno(),
             row_sigma_px: 0.5,
             beams: 320,
             seed: 1,
@@ -73,20 +66,6 @@ pub fn stripe_camera_pose(x: f64, y: f64, height_m: f64, tilt_rad: f64) -> Isome
 }
 
 impl StripeSim {
-    /// The light plane's frame in the camera frame: origin at the emitter, x the sheet's
-    /// central direction, y the camera's x axis, z their cross product.
-    pub fn camera_from_plane(&self) -> Isometry3<f64> {
-        let s = &self.sensor;
-        let central = Vector3::new(0.0, 1.0 / s.beta_rad.tan(), 1.0).normalize();
-        let y = Vector3::x();
-        let z = central.cross(&y);
-        let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[central, y, z]));
-        Isometry3::from_parts(
-            Vector3::new(0.0, -s.baseline_m, 0.0).into(),
-            UnitQuaternion::from_rotation_matrix(&r),
-        )
-    }
-
     /// Scan `k` of the camera at `world_from_camera`, at time `t_s`.
     pub fn scan(
         &self,
@@ -97,7 +76,7 @@ impl StripeSim {
         k: u64,
     ) -> Scan {
         let s = &self.sensor;
-        let plane = self.camera_from_plane();
+        let plane = s.camera_from_plane();
         let world_from_plane = world_from_camera * plane;
         let fan = s.gamma_c_rad * 1.2;
         let n = self.beams.max(2);
@@ -128,8 +107,9 @@ impl StripeSim {
             if p_c.z <= 1e-6 {
                 continue;
             }
-            let u = s.cols_px / 2.0 * (1.0 - p_c.x / p_c.z / s.gamma_c_rad.tan());
-            let v = s.rows_px / 2.0 * (1.0 + p_c.y / p_c.z / s.tau_c_rad.tan());
+            let Some((u, v)) = s.pixel_of(&p_c.into()) else {
+                continue;
+            };
             if !(0.0..s.cols_px).contains(&u) || !(0.0..s.rows_px).contains(&v) {
                 continue;
             }

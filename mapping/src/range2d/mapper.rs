@@ -10,47 +10,75 @@
 use super::certainty::{CertaintyConfig, CertaintyMap, FinishStats};
 use super::mixed::{drop_small_clusters, three_scan_filter, MixedConfig};
 use super::plausibility::{Bound, Motion};
-use super::sensors::UrgSensor;
+use super::sensors::{StripeNoise, StripeSensor, UrgSensor};
 use crate::MappingError;
+use nalgebra::{Point3, Vector3};
 use std::time::Instant;
 use stride_core::grid::{Grid, GridGeometry};
 use stride_core::scan::Scan;
 
-/// The range error that eqs. 6/8 allow for.
+/// The sensor errors that eqs. 6/8 allow for.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum RangeError {
-    /// The URG-04LX's specification (10 mm to 1 m, then 1 %), times this many standard
-    /// deviations; with `raw`, ranges are raw readings that eq. 4 corrects first.
+    /// Eq. 6's range term for the URG-04LX: its specification (10 mm to 1 m, then 1 %),
+    /// times this many standard deviations; with `raw`, ranges are raw readings that eq. 4
+    /// corrects first.
     Urg {
         /// Standard deviations that make the maximum error of eq. 6.
         sigmas: f64,
         /// The log holds raw readings (eq. 4 applies).
         raw: bool,
     },
-    /// A triangulating stripe sensor: the range error grows with the square of the range,
-    /// `Delta r = r^2 Delta v / (b f)` (eq. 1 differentiated by the stripe's row, at the
-    /// image centre), with the baseline `b` (m), the focal length `f` (px) and the stripe's
-    /// row error `Delta v` (px).
+    /// Eq. 8's four sensor terms for the stripe sensor: the point's displacement under the
+    /// maximum errors of the stripe row `v`, the baseline `b`, `beta` and `tau_c` (eq. 1's
+    /// Jacobian). The scans are in the light plane's frame
+    /// ([`StripeSensor::camera_from_plane`]).
     Stripe {
-        /// Baseline (m).
-        baseline_m: f64,
-        /// Focal length (px).
-        focal_px: f64,
-        /// Row error (px).
-        row_px: f64,
+        /// The sensor.
+        sensor: StripeSensor,
+        /// The maximum errors (the column's is not used: eq. 8 has no term for it).
+        errors: StripeNoise,
     },
 }
 
 impl RangeError {
-    /// The maximum range error (m) at range `r_m`.
-    pub fn max_error_m(&self, r_m: f64) -> f64 {
-        match *self {
-            RangeError::Urg { sigmas, .. } => sigmas * UrgSensor::range_sigma_m(r_m),
-            RangeError::Stripe {
-                baseline_m,
-                focal_px,
-                row_px,
-            } => r_m * r_m * row_px / (baseline_m * focal_px),
+    /// Eq. 8's errors of the Ragno prototype: the stripe row to 1 px (twice the detector's
+    /// 0.5 px), the baseline to 1 mm, beta to 0.2 degrees and tau_c to 0.1 degrees (from a
+    /// calibration as in paper 003's reference 14).
+    pub fn ragno_stripe() -> Self {
+        RangeError::Stripe {
+            sensor: StripeSensor::ragno(),
+            errors: StripeNoise {
+                u_px: 0.0,
+                v_px: 1.0,
+                baseline_m: 0.001,
+                beta_rad: 0.2f64.to_radians(),
+                tau_c_rad: 0.1f64.to_radians(),
+            },
+        }
+    }
+
+    /// The point's displacements (sensor frame, m) under each sensor error, for eqs. 6/8:
+    /// along the beam by the range error for the scanner; eq. 1's Jacobian columns for the
+    /// stripe sensor (none when the point cannot be put back into the image).
+    pub fn sensor_errors(&self, p_sensor: &Vector3<f64>) -> Vec<Vector3<f64>> {
+        match self {
+            RangeError::Urg { sigmas, .. } => {
+                let r = p_sensor.norm();
+                vec![p_sensor / r.max(1e-12) * (*sigmas * UrgSensor::range_sigma_m(r))]
+            }
+            RangeError::Stripe { sensor, errors } => {
+                let camera_from_plane = sensor.camera_from_plane();
+                let p_camera = camera_from_plane * Point3::from(*p_sensor);
+                let Some((u, v)) = sensor.pixel_of(&p_camera) else {
+                    return Vec::new();
+                };
+                let plane_from_camera = camera_from_plane.rotation.inverse();
+                sensor
+                    .error_vectors(u, v, errors)
+                    .map(|e| e.iter().skip(1).map(|d| plane_from_camera * d).collect())
+                    .unwrap_or_default()
+            }
         }
     }
 }
@@ -206,15 +234,14 @@ pub fn map_scans(
                 continue;
             };
             stats.returns += 1;
-            let r = p_s.norm();
-            if r > config.max_range_m {
+            if p_s.norm() > config.max_range_m {
                 stats.beyond_range += 1;
                 continue;
             }
-            let err = p_s / r * config.range_error.max_error_m(r);
+            let errors = config.range_error.sensor_errors(&p_s);
             let dz = config
                 .bound
-                .delta_z_max(&scan.world_from_sensor, &p_s, &[err], motion);
+                .delta_z_max(&scan.world_from_sensor, &p_s, &errors, motion);
             if !map.update(p_w.x, p_w.y, p_w.z, dz) {
                 stats.outside += 1;
             }
@@ -359,18 +386,40 @@ mod tests {
     }
 
     #[test]
-    fn range_errors_by_hand() {
+    fn sensor_errors_by_hand() {
         let urg = RangeError::Urg {
             sigmas: 2.0,
             raw: false,
         };
-        assert_eq!(urg.max_error_m(0.5), 0.02);
-        let stripe = RangeError::Stripe {
-            baseline_m: 0.12,
-            focal_px: 600.0,
-            row_px: 0.5,
+        // 2 sigma of 10 mm along the beam at 0.5 m.
+        let e = urg.sensor_errors(&Vector3::new(0.3, 0.4, 0.0));
+        assert!((e[0] - Vector3::new(0.012, 0.016, 0.0)).norm() < 1e-12);
+        // Eq. 8, the stripe row's term alone, for the sheet's central point: in the camera
+        // frame dz/dv = b 2 tan(tau) / (R D^2) with D = cot(beta) at the centre row; the
+        // point moves along the light plane (its z in the plane's frame stays 0).
+        let sensor = StripeSensor::ragno();
+        let only_v = RangeError::Stripe {
+            sensor,
+            errors: StripeNoise {
+                u_px: 0.0,
+                v_px: 1.0,
+                baseline_m: 0.0,
+                beta_rad: 0.0,
+                tau_c_rad: 0.0,
+            },
         };
-        // 0.3^2 * 0.5 / (0.12 * 600) = 0.000625.
-        assert!((stripe.max_error_m(0.3) - 0.000625).abs() < 1e-12);
+        let centre = sensor.point(320.0, 240.0).unwrap();
+        let p_plane = sensor.camera_from_plane().inverse() * centre;
+        let e = only_v.sensor_errors(&p_plane.coords);
+        assert_eq!(e.len(), 4);
+        let d = 1.0 / sensor.beta_rad.tan();
+        let dz_dv = 0.12 * 2.0 * sensor.tau_c_rad.tan() / (480.0 * d * d);
+        let in_camera = sensor.camera_from_plane().rotation * e[0];
+        assert!(
+            (in_camera.z - dz_dv).abs() < 1e-6 * dz_dv.max(1.0),
+            "{in_camera} vs {dz_dv}"
+        );
+        assert!(e[0].z.abs() < 1e-9, "stays in the plane");
+        assert!(e[1..].iter().all(|x| x.norm() == 0.0));
     }
 }
