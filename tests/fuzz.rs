@@ -5,8 +5,8 @@
 //! shows as a case over `SLOW_S`).
 //!
 //! Parsers: TUM trajectories, image lists, camera files (JSON, TOML, YAML, ORB-SLAM
-//! settings), colour images (PNG, JPEG), depth PNGs, `.npy` layers and grid headers, ROS 2
-//! CDR messages and MCAP logs.
+//! settings), colour images (PNG, JPEG), depth PNGs, `.npy` layers and grid headers, scan
+//! logs, ROS 2 CDR messages and MCAP logs.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
 
@@ -30,6 +30,7 @@ use stride_datasets::orbslam_settings;
 use stride_datasets::png_io::{
     decode_depth, decode_rgb, encode_depth_u16, encode_gray, encode_rgb,
 };
+use stride_datasets::scan_log::parse_scan_log;
 use stride_datasets::trajectory_file::parse_tum_trajectory;
 use stride_datasets::tum::parse_image_list;
 
@@ -144,6 +145,13 @@ fn trajectories_and_image_lists() {
     fuzz("image_list", &[list.to_vec()], |b| {
         parse_image_list(&text(b), Path::new("rgb.txt")).is_ok()
     });
+    let scans = b"# t tx ty tz qx qy qz qw angle_min angle_increment n r...\n\
+        0.0 0 0 0.26 0 0.3007058 0 0.9537170 -0.5 0.25 5 0.45 0.46 nan 0 0.5\n\
+        0.1 0.01 0 0.26 0 0.3007058 0 0.9537170 -0.5 0.25 5 0.45 0.46 0.47 0.48 0.5\n";
+    let accepted = fuzz("scan_log", &[scans.to_vec()], |b| {
+        parse_scan_log(&text(b), Path::new("scans.txt")).is_ok()
+    });
+    assert!(accepted > 0);
 }
 
 #[test]

@@ -43,7 +43,7 @@ pub fn parse_scan_log(text: &str, path: &Path) -> Result<Vec<Scan>, DatasetError
         let n: usize = fields[10]
             .parse()
             .map_err(|_| err(format!("n = '{}' is not a count of ranges", fields[10])))?;
-        if fields.len() != 11 + n {
+        if n.checked_add(11) != Some(fields.len()) {
             return Err(err(format!(
                 "n = {n} ranges announced, {} given",
                 fields.len() - 11
