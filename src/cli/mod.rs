@@ -9,6 +9,7 @@ mod eval_ci;
 pub mod gates;
 mod map;
 mod map2d;
+mod map2d_report;
 mod map_figures;
 mod run;
 mod run_files;
