@@ -174,12 +174,10 @@ pub fn views_map(
         .enumerate()
         .map(|(position, &index)| (index, position))
         .collect();
-    let end = frames.iter().max().map_or(0, |&m| m + 1);
-    // One pass over the sequence (an MCAP log is read in order, not by index).
-    for item in seq.stream(Some(end), 4) {
+    // Only the views' frames are decoded, in one pass (an MCAP log is read in order).
+    for item in seq.stream_frames(wanted.keys().copied().collect(), 4) {
         let frame = match item {
             Ok(d) => d.frame,
-            Err(StreamError::Frame(f)) if !wanted.contains_key(&f.index) => continue,
             Err(StreamError::Frame(f)) => return Err(f.error.into()),
             Err(StreamError::Stopped(e)) => return Err(e.into()),
         };

@@ -112,6 +112,15 @@ impl Sequence {
         }
     }
 
+    /// Frames `indices` (ascending) decoded ahead on a background thread, each keeping its
+    /// index; the others are not decoded.
+    pub fn stream_frames(&self, indices: Vec<usize>, prefetch: usize) -> FrameStream {
+        match self {
+            Self::Tum(s) => s.stream_frames(indices, prefetch),
+            Self::Mcap(s) => s.stream_frames(indices, prefetch),
+        }
+    }
+
     /// Frames decoded ahead on a background thread (see [`TumSequence::stream`]).
     pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
         match self {

@@ -283,10 +283,19 @@ impl TumSequence {
     /// ends the stream with [`crate::stream::StreamError::Stopped`].
     pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
         let n = max_frames.map_or(self.frames.len(), |m| m.min(self.frames.len()));
-        let entries: Vec<FrameEntry> = self.frames.iter().take(n).cloned().collect();
+        self.stream_frames((0..n).collect(), prefetch)
+    }
+
+    /// As [`Self::stream`], for the frames `indices` only (ascending); each frame keeps its
+    /// index in the sequence.
+    pub fn stream_frames(&self, indices: Vec<usize>, prefetch: usize) -> FrameStream {
+        let entries: Vec<(usize, FrameEntry)> = indices
+            .iter()
+            .filter_map(|&i| Some((i, self.frames.get(i)?.clone())))
+            .collect();
         let camera = self.camera;
-        FrameStream::spawn(&self.dir, n, prefetch, move |tx| {
-            for (index, entry) in entries.iter().enumerate() {
+        FrameStream::spawn(&self.dir, entries.len(), prefetch, move |tx| {
+            for (index, entry) in entries.iter().map(|(i, e)| (*i, e)) {
                 let start = Instant::now();
                 let item = load_entry(index, entry, &camera)
                     .map(|frame| DecodedFrame {

@@ -16,7 +16,7 @@ use stride_datasets::synth::{Synth, SynthConfig};
 use stride_mapping::metrics::{compare, compare_over_seen, phantoms};
 use stride_mapping::range2d::certainty::{CertaintyConfig, ElevationRule};
 use stride_mapping::range2d::mapper::{
-    calibrate_raw, covering_geometry, filter_scans, map_scans, RangeError, ScanMapConfig,
+    calibrate_raw, covering_geometry, filter_scans, map_filtered, RangeError, ScanMapConfig,
 };
 use stride_mapping::range2d::mixed::MixedConfig;
 use stride_mapping::range2d::yardstick::{
@@ -289,11 +289,12 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
     let g = covering_geometry(&scans, a.resolution, 0.02, a.max_range)
         .with_context(|| format!("{}: no scan has a return", a.scans.display()))?;
     let (naive, seen) = naive_and_seen(&scans, g, truth.as_ref(), a.max_range);
-    let scans_for_swept = scans.clone();
-    let n_scans = scans.len();
-    let (elevation, certainty, mut stats) = map_scans(scans, g, &config)?;
+    // The map gets the filtered scans; the yardsticks keep every return.
+    let mut filtered = scans.clone();
+    let filter_stats = filter_scans(&mut filtered, &config);
+    let (elevation, certainty, mut stats) = map_filtered(&filtered, g, &config, filter_stats)?;
     stats.uncalibrated = uncalibrated;
-    let swept = swept(&scans_for_swept, g, a.max_range);
+    let swept = swept(&scans, g, a.max_range);
     let mixed_file = a
         .scans
         .parent()
@@ -305,23 +306,15 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
                 std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
             let marks: Vec<Vec<usize>> = serde_json::from_str(&text)
                 .with_context(|| format!("{}: not a list of beam lists", p.display()))?;
-            if marks.len() != scans_for_swept.len() {
+            if marks.len() != scans.len() {
                 anyhow::bail!(
                     "{}: {} scans marked, the log has {}",
                     p.display(),
                     marks.len(),
-                    scans_for_swept.len()
+                    scans.len()
                 );
             }
-            let mut filtered = scans_for_swept.clone();
-            filter_scans(&mut filtered, &config);
-            Some(mixed_truth(
-                &scans_for_swept,
-                &filtered,
-                &marks,
-                g,
-                a.max_range,
-            ))
+            Some(mixed_truth(&scans, &filtered, &marks, g, a.max_range))
         }
         None => None,
     };
@@ -401,7 +394,7 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
     let report = json!({
         "scans_without_pose": unplaced,
         "mixed_returns": mixed_report,
-        "scans": n_scans,
+        "scans": scans.len(),
         "grid": {"rows": g.rows, "cols": g.cols, "resolution_m": g.resolution},
         "sensor": format!("{:?}", a.sensor).to_lowercase(),
         "mixed_pixel_filter": !a.no_mixed_pixel_filter,
@@ -425,7 +418,7 @@ pub fn map2d(a: Map2dArgs) -> Result<()> {
         &dir.join("report.json"),
         serde_json::to_string_pretty(&report)?.as_bytes(),
     )?;
-    let path: Vec<(f64, f64)> = scans_for_swept
+    let path: Vec<(f64, f64)> = scans
         .iter()
         .map(|s| {
             let t = s.world_from_sensor.translation.vector;

@@ -20,6 +20,7 @@ use super::ros2::{
     CameraInfoMsg, CompressedImageMsg, Header, ImageMsg, ImuMsg, TfMessage, Time, TransformStamped,
 };
 use super::schema::Ros2Type;
+use super::writer::{write_log, LogWriter};
 use super::{
     McapSequence, DEFAULT_CAMERA_INFO_TOPIC, DEFAULT_DEPTH_TOPIC, DEFAULT_IMU_TOPIC,
     DEFAULT_RGB_TOPIC, DEPTH_UNITS_KEY, GROUNDTRUTH_CHILD, GROUNDTRUTH_PARENT, TF_TOPIC,
@@ -28,11 +29,9 @@ use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use crate::png_io::{decode_depth_raw, decode_rgb, encode_depth_u16, encode_rgb};
 use crate::tum::{read_image_list, TumSequence};
-use std::collections::BTreeMap;
-use std::io::{BufWriter, Write};
 use std::path::Path;
 use stride_core::pose::pose_to_translation_quaternion;
-use stride_output::fs::{temp_path_for, StagedDir};
+use stride_output::fs::StagedDir;
 
 /// How images are stored in a converted log.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -71,10 +70,6 @@ pub struct ConvertCounts {
 
 /// The frame id of the colour camera's optical frame in written messages.
 pub const CAMERA_FRAME_ID: &str = "camera_rgb_optical_frame";
-
-fn mcap_err(path: &Path, e: ::mcap::McapError) -> DatasetError {
-    DatasetError::invalid(path, format!("writing MCAP: {e}"))
-}
 
 /// The `CameraInfo` of a camera (plumb-bob distortion, identity rectification).
 pub fn camera_info(camera: &CameraConfig, header: Header) -> CameraInfoMsg {
@@ -135,61 +130,36 @@ pub fn tum_to_mcap(
             .collect())
     };
     let (rgb, depth) = (stamped("rgb.txt")?, stamped("depth.txt")?);
-    let tmp = temp_path_for(out);
-    let result = write_log(&seq, &rgb, &depth, &tmp, format, compression).and_then(|counts| {
-        std::fs::rename(&tmp, out).map_err(|e| DatasetError::io(out, e))?;
-        Ok(counts)
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
-
-fn write_log(
-    seq: &TumSequence,
-    rgb: &[(Time, String)],
-    depth: &[(Time, String)],
-    path: &Path,
-    format: ImageFormat,
-    compression: Compression,
-) -> Result<ConvertCounts, DatasetError> {
-    let file = std::fs::File::create(path).map_err(|e| DatasetError::io(path, e))?;
     let options = ::mcap::WriteOptions::new()
         .profile("ros2")
-        .library(concat!("stride ", env!("CARGO_PKG_VERSION")))
         .compression(match compression {
             Compression::None => None,
             Compression::Zstd => Some(::mcap::Compression::Zstd),
             Compression::Lz4 => Some(::mcap::Compression::Lz4),
         });
-    let mut w = options
-        .create(BufWriter::with_capacity(1 << 20, file))
-        .map_err(|e| mcap_err(path, e))?;
-    let channel =
-        |w: &mut ::mcap::Writer<_>, ty: Ros2Type, topic: &str, meta: &[(&str, String)]| {
-            let schema = w
-                .add_schema(ty.name(), "ros2msg", ty.schema_text().as_bytes())
-                .map_err(|e| mcap_err(path, e))?;
-            let meta: BTreeMap<String, String> = meta
-                .iter()
-                .map(|(k, v)| ((*k).to_owned(), v.clone()))
-                .collect();
-            w.add_channel(schema, topic, "cdr", &meta)
-                .map_err(|e| mcap_err(path, e))
-        };
+    write_log(out, options, |w| fill_log(w, &seq, &rgb, &depth, format))
+}
+
+fn fill_log(
+    w: &mut LogWriter,
+    seq: &TumSequence,
+    rgb: &[(Time, String)],
+    depth: &[(Time, String)],
+    format: ImageFormat,
+) -> Result<ConvertCounts, DatasetError> {
+    let mut channel =
+        |ty: Ros2Type, topic: &str, meta: &[(&str, String)]| w.add_ros2_channel(ty, topic, meta);
     let image_type = match format {
         ImageFormat::Raw => Ros2Type::Image,
         ImageFormat::Png => Ros2Type::CompressedImage,
     };
-    let ch_rgb = channel(&mut w, image_type, DEFAULT_RGB_TOPIC, &[])?;
+    let ch_rgb = channel(image_type, DEFAULT_RGB_TOPIC, &[])?;
     let ch_depth = channel(
-        &mut w,
         image_type,
         DEFAULT_DEPTH_TOPIC,
         &[(DEPTH_UNITS_KEY, format!("{}", seq.camera.depth_scale))],
     )?;
-    let ch_info = channel(&mut w, Ros2Type::CameraInfo, DEFAULT_CAMERA_INFO_TOPIC, &[])?;
+    let ch_info = channel(Ros2Type::CameraInfo, DEFAULT_CAMERA_INFO_TOPIC, &[])?;
     let header = |stamp: Time| Header {
         stamp,
         frame_id: CAMERA_FRAME_ID.into(),
@@ -232,7 +202,7 @@ fn write_log(
         ..ConvertCounts::default()
     };
     if let Some(acc) = &seq.accelerometer {
-        let ch = channel(&mut w, Ros2Type::Imu, DEFAULT_IMU_TOPIC, &[])?;
+        let ch = channel(Ros2Type::Imu, DEFAULT_IMU_TOPIC, &[])?;
         for (t, a) in acc {
             let stamp = Time::from_seconds(*t);
             let m = ImuMsg {
@@ -249,7 +219,7 @@ fn write_log(
         counts.imu = acc.len();
     }
     if let Some(gt) = &seq.groundtruth {
-        let ch = channel(&mut w, Ros2Type::TfMessage, TF_TOPIC, &[])?;
+        let ch = channel(Ros2Type::TfMessage, TF_TOPIC, &[])?;
         for (t, pose) in gt.iter() {
             let stamp = Time::from_seconds(t);
             let (translation, rotation) = pose_to_translation_quaternion(pose);
@@ -269,30 +239,13 @@ fn write_log(
         counts.groundtruth = gt.len();
     }
     all.sort_by_key(|(t, kind, _, _)| (*t, *kind));
-    let mut sequence: BTreeMap<u16, u32> = BTreeMap::new();
     for (stamp, _, ch, pending) in all {
         let data = match pending {
             Pending::Ready(d) => d,
             Pending::Image { file, depth } => image_message(&file, depth, format, header(stamp))?,
         };
-        let seq_no = sequence.entry(ch).or_insert(0);
-        *seq_no += 1;
-        let h = ::mcap::records::MessageHeader {
-            channel_id: ch,
-            sequence: *seq_no,
-            log_time: stamp.nanos(),
-            publish_time: stamp.nanos(),
-        };
-        w.write_to_known_channel(&h, &data)
-            .map_err(|e| mcap_err(path, e))?;
+        w.write(ch, stamp.nanos(), &data)?;
     }
-    w.finish().map_err(|e| mcap_err(path, e))?;
-    let mut inner = w.into_inner();
-    inner.flush().map_err(|e| DatasetError::io(path, e))?;
-    inner
-        .get_ref()
-        .sync_all()
-        .map_err(|e| DatasetError::io(path, e))?;
     Ok(counts)
 }
 

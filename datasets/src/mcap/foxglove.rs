@@ -9,16 +9,15 @@
 //! (fields `elevation` and `variance`, float32, NaN where unknown; rows along +y, columns
 //! along +x, the grid's pose at the corner of cell (0, 0)).
 
+use super::writer::{write_log, LogWriter};
 use crate::error::DatasetError;
 use base64::Engine as _;
 use nalgebra::{Isometry3, Point3};
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
-use std::io::{BufWriter, Write};
 use std::path::Path;
 use stride_core::grid::Grid;
 use stride_core::pose::{pose_to_translation_quaternion, Pose};
-use stride_output::fs::temp_path_for;
 
 /// The world frame's id.
 pub const WORLD_FRAME: &str = "world";
@@ -117,54 +116,29 @@ const FLOAT32: u32 = 7;
 
 /// Writes `run` as an MCAP log at `path` (a temporary sibling renamed into place).
 pub fn write_run_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
-    let tmp = temp_path_for(path);
-    let result = write_log(&tmp, run)
-        .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| DatasetError::io(path, e)));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    let options = ::mcap::WriteOptions::new().compression(Some(::mcap::Compression::Zstd));
+    write_log(path, options, |w| fill_log(w, run))
 }
 
-fn write_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
-    let err = |e: ::mcap::McapError| DatasetError::invalid(path, format!("writing MCAP: {e}"));
-    let file = std::fs::File::create(path).map_err(|e| DatasetError::io(path, e))?;
-    let mut w = ::mcap::WriteOptions::new()
-        .library(concat!("stride ", env!("CARGO_PKG_VERSION")))
-        .compression(Some(::mcap::Compression::Zstd))
-        .create(BufWriter::new(file))
-        .map_err(err)?;
+fn fill_log(w: &mut LogWriter, run: &RunLog) -> Result<(), DatasetError> {
     let mut channels: BTreeMap<&str, u16> = BTreeMap::new();
-    let mut sequence = 0u32;
-    let mut put =
-        |w: &mut ::mcap::Writer<_>, topic: &'static str, ty: &str, t_s: f64, msg: Value| {
-            let ch = match channels.get(topic) {
-                Some(&c) => c,
-                None => {
-                    let s = schema(ty).to_string();
-                    let sid = w.add_schema(ty, "jsonschema", s.as_bytes()).map_err(err)?;
-                    let c = w
-                        .add_channel(sid, topic, "json", &BTreeMap::new())
-                        .map_err(err)?;
-                    channels.insert(topic, c);
-                    c
-                }
-            };
-            sequence += 1;
-            let ns = super::ros2::Time::from_seconds(t_s).nanos();
-            let header = ::mcap::records::MessageHeader {
-                channel_id: ch,
-                sequence,
-                log_time: ns,
-                publish_time: ns,
-            };
-            w.write_to_known_channel(&header, msg.to_string().as_bytes())
-                .map_err(err)
+    let mut put = |w: &mut LogWriter, topic: &'static str, ty: &str, t_s: f64, msg: Value| {
+        let ch = match channels.get(topic) {
+            Some(&c) => c,
+            None => {
+                let s = schema(ty).to_string();
+                let c = w.add_channel(ty, "jsonschema", s.as_bytes(), topic, "json", &[])?;
+                channels.insert(topic, c);
+                c
+            }
         };
+        let ns = super::ros2::Time::from_seconds(t_s).nanos();
+        w.write(ch, ns, msg.to_string().as_bytes())
+    };
     for (t, p) in run.poses {
         let (tr, q) = pose_to_translation_quaternion(p);
         put(
-            &mut w,
+            w,
             TF_TOPIC,
             "foxglove.FrameTransform",
             *t,
@@ -182,7 +156,7 @@ fn write_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
     ] {
         let poses: Vec<Value> = poses.iter().map(|(_, p)| pose_json(p)).collect();
         put(
-            &mut w,
+            w,
             topic,
             "foxglove.PosesInFrame",
             t_end,
@@ -200,7 +174,7 @@ fn write_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
     }
     let b64 = base64::engine::general_purpose::STANDARD;
     put(
-        &mut w,
+        w,
         POINTS_TOPIC,
         "foxglove.PointCloud",
         t_end,
@@ -228,7 +202,7 @@ fn write_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
             0.0,
         );
         put(
-            &mut w,
+            w,
             ELEVATION_TOPIC,
             "foxglove.Grid",
             t_end,
@@ -245,11 +219,5 @@ fn write_log(path: &Path, run: &RunLog) -> Result<(), DatasetError> {
             }),
         )?;
     }
-    w.finish().map_err(err)?;
-    let mut inner = w.into_inner();
-    inner.flush().map_err(|e| DatasetError::io(path, e))?;
-    inner
-        .get_ref()
-        .sync_all()
-        .map_err(|e| DatasetError::io(path, e))
+    Ok(())
 }

@@ -5,6 +5,7 @@
 
 use super::ros2::{Header, LaserScanMsg, TfMessage, Time, TransformStamped};
 use super::schema::Ros2Type;
+use super::writer::write_log;
 use crate::error::DatasetError;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -146,27 +147,13 @@ pub fn write_laser_scans(
     fixed_frame: &str,
     sensor_frame: &str,
 ) -> Result<(), DatasetError> {
-    let tmp = stride_output::fs::temp_path_for(path);
-    let result = (|| {
-        let err = |e: ::mcap::McapError| DatasetError::invalid(path, format!("writing MCAP: {e}"));
-        let file = std::fs::File::create(&tmp).map_err(|e| DatasetError::io(&tmp, e))?;
-        let mut w = ::mcap::WriteOptions::new()
-            .profile("ros2")
-            .compression(Some(::mcap::Compression::Zstd))
-            .create(std::io::BufWriter::new(file))
-            .map_err(err)?;
-        let mut channel = |ty: Ros2Type, topic: &str| -> Result<u16, DatasetError> {
-            let s = w
-                .add_schema(ty.name(), "ros2msg", ty.schema_text().as_bytes())
-                .map_err(err)?;
-            w.add_channel(s, topic, "cdr", &BTreeMap::new())
-                .map_err(err)
-        };
-        let (ch_scan, ch_tf) = (
-            channel(Ros2Type::LaserScan, topic)?,
-            channel(Ros2Type::TfMessage, "/tf")?,
-        );
-        for (k, s) in scans.iter().enumerate() {
+    let options = ::mcap::WriteOptions::new()
+        .profile("ros2")
+        .compression(Some(::mcap::Compression::Zstd));
+    write_log(path, options, |w| {
+        let ch_scan = w.add_ros2_channel(Ros2Type::LaserScan, topic, &[])?;
+        let ch_tf = w.add_ros2_channel(Ros2Type::TfMessage, "/tf", &[])?;
+        for s in scans {
             let stamp = Time::from_seconds(s.t_s);
             let (translation, rotation) =
                 stride_core::pose::pose_to_translation_quaternion(&s.world_from_sensor);
@@ -207,23 +194,9 @@ pub fn write_laser_scans(
                     .collect(),
                 intensities: Vec::new(),
             };
-            for (ch, data) in [(ch_tf, tf.encode()), (ch_scan, scan.encode())] {
-                let h = ::mcap::records::MessageHeader {
-                    channel_id: ch,
-                    sequence: k as u32,
-                    log_time: stamp.nanos(),
-                    publish_time: stamp.nanos(),
-                };
-                w.write_to_known_channel(&h, &data).map_err(err)?;
-            }
+            w.write(ch_tf, stamp.nanos(), &tf.encode())?;
+            w.write(ch_scan, stamp.nanos(), &scan.encode())?;
         }
-        w.finish().map_err(err)?;
-        let mut inner = w.into_inner();
-        std::io::Write::flush(&mut inner).map_err(|e| DatasetError::io(&tmp, e))?;
-        std::fs::rename(&tmp, path).map_err(|e| DatasetError::io(path, e))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+        Ok(())
+    })
 }

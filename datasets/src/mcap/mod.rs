@@ -24,6 +24,7 @@ pub mod laser;
 pub mod ros2;
 mod scan;
 pub mod schema;
+mod writer;
 
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
@@ -233,24 +234,37 @@ impl McapSequence {
     /// [`crate::stream::StreamError::Stopped`] after a failure naming the cause.
     pub fn stream(&self, max_frames: Option<usize>, prefetch: usize) -> FrameStream {
         let n = max_frames.map_or(self.frames.len(), |m| m.min(self.frames.len()));
-        let seq = self.clone();
-        FrameStream::spawn(&self.path, n, prefetch, move |tx| seq.decode_frames(n, &tx))
+        self.stream_frames((0..n).collect(), prefetch)
     }
 
-    /// The decoder thread's loop: frames `0..n` in order, sent through `tx`.
-    fn decode_frames(&self, n: usize, tx: &std::sync::mpsc::SyncSender<crate::stream::Decoded>) {
-        let frames = self.frames.get(..n).unwrap_or(&self.frames);
-        let rgb_of: HashMap<usize, usize> = frames
+    /// As [`Self::stream`], for the frames `indices` only (ascending; others are skipped
+    /// without being decoded). Each frame keeps its index in the sequence.
+    pub fn stream_frames(&self, indices: Vec<usize>, prefetch: usize) -> FrameStream {
+        let seq = self.clone();
+        FrameStream::spawn(&self.path, indices.len(), prefetch, move |tx| {
+            seq.decode_frames(&indices, &tx)
+        })
+    }
+
+    /// The decoder thread's loop: frames `indices` in order, sent through `tx`.
+    fn decode_frames(
+        &self,
+        indices: &[usize],
+        tx: &std::sync::mpsc::SyncSender<crate::stream::Decoded>,
+    ) {
+        let n = indices.len();
+        // Message index on its topic -> position in `indices`.
+        let mut rgb_of: HashMap<usize, usize> = HashMap::new();
+        let mut depth_of: HashMap<usize, usize> = HashMap::new();
+        for (position, f) in indices
             .iter()
             .enumerate()
-            .map(|(i, f)| (f.rgb_message, i))
-            .collect();
-        let depth_of: HashMap<usize, usize> = frames
-            .iter()
-            .enumerate()
-            .map(|(i, f)| (f.depth_message, i))
-            .collect();
-        // Messages waiting for their partner or for earlier frames.
+            .filter_map(|(p, &i)| Some((p, self.frames.get(i)?)))
+        {
+            rgb_of.insert(f.rgb_message, position);
+            depth_of.insert(f.depth_message, position);
+        }
+        // Messages waiting for their partner or for earlier frames, by position.
         let mut pending: BTreeMap<usize, Halves> = BTreeMap::new();
         let mut next = 0usize;
         let mut counts = [0usize; 2];
@@ -270,24 +284,25 @@ impl McapSequence {
             };
             let k = counts[which];
             counts[which] += 1;
-            let Some(&index) = [&rgb_of, &depth_of][which].get(&k) else {
+            let Some(&position) = [&rgb_of, &depth_of][which].get(&k) else {
                 last = Instant::now();
                 return Ok(next < n);
             };
-            let entry = pending.entry(index).or_default();
+            let entry = pending.entry(position).or_default();
             entry.0[which] = Some(message.data.into_owned());
             while let Some(Halves([Some(_), Some(_)])) = pending.get(&next) {
                 let Some(Halves([Some(rgb), Some(depth)])) = pending.remove(&next) else {
                     break;
                 };
+                let index = indices.get(next).copied().unwrap_or(next);
                 let start = Instant::now();
                 let item = self
-                    .decode_frame(next, &rgb, &depth)
+                    .decode_frame(index, &rgb, &depth)
                     .map(|frame| DecodedFrame {
                         frame,
                         decode_s: read_s + start.elapsed().as_secs_f64(),
                     })
-                    .map_err(|error| FrameFailure { index: next, error });
+                    .map_err(|error| FrameFailure { index, error });
                 read_s = 0.0;
                 if tx.send(item).is_err() {
                     return Ok(false); // the consumer hung up
@@ -298,8 +313,8 @@ impl McapSequence {
             Ok(next < n)
         });
         if let Err(error) = result {
-            if next < n {
-                let _ = tx.send(Err(FrameFailure { index: next, error }));
+            if let Some(&index) = indices.get(next) {
+                let _ = tx.send(Err(FrameFailure { index, error }));
             }
         }
     }

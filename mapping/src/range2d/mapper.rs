@@ -215,14 +215,27 @@ pub fn map_scans(
     geometry: GridGeometry,
     config: &ScanMapConfig,
 ) -> Result<(Grid<f32>, Grid<f32>, ScanMapStats), MappingError> {
-    let mut map = CertaintyMap::new(geometry, config.certainty)?;
-    let mut stats = ScanMapStats::default();
-    let mut times = Vec::with_capacity(scans.len());
     let filtered = filter_scans(&mut scans, config);
-    stats.uncalibrated = filtered.uncalibrated;
-    stats.dropped_clusters = filtered.dropped_clusters;
-    stats.dropped_three_scan = filtered.dropped_three_scan;
-    times.extend(filtered.scan_s);
+    map_filtered(&scans, geometry, config, filtered)
+}
+
+/// The map update of [`map_scans`] on scans that [`filter_scans`] has already filtered
+/// (`filtered` is what it reported).
+pub fn map_filtered(
+    scans: &[Scan],
+    geometry: GridGeometry,
+    config: &ScanMapConfig,
+    filtered: FilterStats,
+) -> Result<(Grid<f32>, Grid<f32>, ScanMapStats), MappingError> {
+    let mut map = CertaintyMap::new(geometry, config.certainty)?;
+    let mut stats = ScanMapStats {
+        uncalibrated: filtered.uncalibrated,
+        dropped_clusters: filtered.dropped_clusters,
+        dropped_three_scan: filtered.dropped_three_scan,
+        ..ScanMapStats::default()
+    };
+    let mut times = filtered.scan_s;
+    times.resize(scans.len(), 0.0);
     for (k, scan) in scans.iter().enumerate() {
         let t = Instant::now();
         let motion = match k.checked_sub(1).and_then(|j| scans.get(j)) {
