@@ -21,6 +21,7 @@
 //! heading. Output is deterministic for a seed, whatever the thread count.
 
 pub mod motion;
+pub mod raster;
 pub mod render;
 pub mod scanner;
 pub mod scene;
@@ -43,7 +44,7 @@ pub const ACCELEROMETER_HZ: f64 = 100.0;
 /// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
 pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
 use nalgebra::Isometry3;
-use render::{depth_sensor, rgb_sensor, Renderer};
+use render::{depth_sensor, rgb_sensor, Renderer, Visibility};
 use scene::Scene;
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
@@ -86,6 +87,9 @@ pub struct SynthFrame {
     pub info: FrameInfo,
     /// Rendering time (s), sensor models included, PNG encoding excluded.
     pub render_s: f64,
+    /// Rays of the depth pass whose terrain hit was marched (see
+    /// [`render::Geometry::marched_rays`]).
+    pub marched_rays: usize,
 }
 
 /// A synthetic world ready to render frames.
@@ -198,6 +202,17 @@ impl Synth {
 
     /// Renders frame `index` (time `index / fps` after the start).
     pub fn render_frame(&self, renderer: &Renderer<'_>, index: usize) -> SynthFrame {
+        self.render_frame_with(renderer, index, Visibility::Rasterized)
+    }
+
+    /// [`Self::render_frame`] with a choice of how the terrain is found (the marched
+    /// reference, for comparisons and benchmarks).
+    pub fn render_frame_with(
+        &self,
+        renderer: &Renderer<'_>,
+        index: usize,
+        visibility: Visibility,
+    ) -> SynthFrame {
         let start = Instant::now();
         let cfg = &self.config;
         let t = index as f64 / cfg.fps;
@@ -241,7 +256,7 @@ impl Synth {
         } else {
             motion_px + 2.0
         };
-        let geom = renderer.render(&pose, rs <= 0.0);
+        let geom = renderer.render_with(&pose, rs <= 0.0, visibility);
         let mut color = if rs > 0.0 {
             vec![[0.0f32; 3]; geom.color.len()]
         } else {
@@ -252,7 +267,7 @@ impl Synth {
                 continue; // the global-shutter centre sub-frame came with the depth
             }
             let tk = t - e / 2.0 + (k as f64 + 0.5) * e / n as f64;
-            renderer.accumulate_color(&row_poses(tk), pad, &mut color);
+            renderer.accumulate_color(&row_poses(tk), pad, &mut color, visibility);
         }
         let gain = 1.0
             + cfg.exposure_flicker
@@ -296,6 +311,7 @@ impl Synth {
         SynthFrame {
             rgb,
             depth_raw,
+            marched_rays: geom.marched_rays,
             depth_true_m: geom.depth_z,
             info: FrameInfo {
                 index,

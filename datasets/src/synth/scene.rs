@@ -325,20 +325,43 @@ impl Scene {
         u: f64,
         v: f64,
     ) -> Option<Hit> {
+        self.trace_with(o, d, t_max, candidates, u, v, |limit| {
+            self.terrain.intersect(o, d, limit).map(|h| h.t)
+        })
+    }
+
+    /// As [`Self::trace`], with the terrain's hit found by `terrain_t`: given the nearest
+    /// object's distance (or `t_max`), it returns the terrain's first hit before it (m along
+    /// the ray), if any. The rasteriser passes an exact patch intersection here.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn trace_with(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+        candidates: &[ScreenBox],
+        u: f64,
+        v: f64,
+        terrain_t: impl FnOnce(f64) -> Option<f64>,
+    ) -> Option<Hit> {
         let boxes = candidates
             .iter()
             .filter(|sb| u >= sb.u0 && u <= sb.u1 && v >= sb.v0 && v <= sb.v1)
             .filter_map(|sb| self.boxes.get(sb.index));
-        self.nearest(o, d, t_max, boxes)
+        self.nearest(o, d, t_max, boxes, terrain_t)
     }
 
     /// First hit along the unit ray `o + t d`, `t <= t_max`, testing every object (for rays
     /// that are not a camera's pixels, such as a laser scanner's beams).
     pub fn trace_ray(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> Option<Hit> {
-        self.nearest(o, d, t_max, self.boxes.iter())
+        self.nearest(o, d, t_max, self.boxes.iter(), |limit| {
+            self.terrain.intersect(o, d, limit).map(|h| h.t)
+        })
     }
 
-    /// The nearest hit of the terrain and `boxes`.
+    /// The nearest hit of the terrain (found by `terrain_t`, see [`Self::trace_with`]) and
+    /// `boxes`.
     #[inline]
     fn nearest<'s>(
         &self,
@@ -346,6 +369,7 @@ impl Scene {
         d: [f64; 3],
         t_max: f64,
         boxes: impl Iterator<Item = &'s SceneBox>,
+        terrain_t: impl FnOnce(f64) -> Option<f64>,
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
@@ -360,10 +384,10 @@ impl Scene {
                 });
             }
         }
-        if let Some(th) = self.terrain.intersect(o, d, limit) {
-            let (x, y) = (o[0] + th.t * d[0], o[1] + th.t * d[1]);
+        if let Some(t) = terrain_t(limit) {
+            let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
             best = Some(Hit {
-                t: th.t,
+                t,
                 normal: self.terrain.normal(x, y),
                 material: Material::Ground,
                 uv: (x, y),

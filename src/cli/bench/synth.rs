@@ -1,9 +1,11 @@
-//! `stride bench synth`: rendering speed of the synthetic generator.
+//! `stride bench synth`: rendering speed of the synthetic generator, the rasterised
+//! renderer against the marched reference in the same run.
 
 use super::median;
 use anyhow::{bail, Result};
 use clap::Args;
 use std::time::Instant;
+use stride_datasets::synth::render::Visibility;
 
 #[derive(Debug, Args)]
 pub struct SynthBenchArgs {
@@ -13,6 +15,18 @@ pub struct SynthBenchArgs {
     /// Walking speed (m/s) of the tripod gait used for the blurred frames.
     #[arg(long, default_value_t = 0.15)]
     speed: f64,
+    /// Rolling-shutter readout (ms): the lab's default is 20, 0 is a global shutter.
+    #[arg(long, default_value_t = 20.0)]
+    rolling_shutter_ms: f64,
+}
+
+/// Per-frame measurements of one renderer.
+#[derive(Default)]
+struct Times {
+    render_s: Vec<f64>,
+    encode_s: Vec<f64>,
+    /// Rays of the depth pass that were marched.
+    marched: Vec<f64>,
 }
 
 pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
@@ -21,9 +35,14 @@ pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
-    crate::outln!("synthetic rendering, 640x480, procedural 'mixed' terrain, tripod at {} m/s; medians of {} frames", a.speed, a.frames)?;
+    crate::outln!(
+        "synthetic rendering, 640x480, procedural 'mixed' terrain, tripod at {} m/s, rolling shutter {} ms; medians of {} frames, the two renderers alternating",
+        a.speed,
+        a.rolling_shutter_ms,
+        a.frames
+    )?;
     for blur in [false, true] {
-        let config = SynthConfig {
+        let mut config = SynthConfig {
             frames: a.frames,
             blur,
             motion: MotionConfig {
@@ -32,26 +51,50 @@ pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
             },
             ..SynthConfig::default()
         };
+        config.camera.rolling_shutter_s = a.rolling_shutter_ms * 1e-3;
         let synth = Synth::new(config)?;
         let renderer = synth.renderer();
-        let (mut render, mut encode, mut sub) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut marched, mut raster) = (Times::default(), Times::default());
+        let mut subframes = Vec::new();
         for i in 0..a.frames {
-            let f = synth.render_frame(&renderer, i);
-            let t = Instant::now();
-            let _ = encode_rgb(&f.rgb);
-            let _ = encode_depth_u16(&f.depth_raw);
-            encode.push(t.elapsed().as_secs_f64());
-            render.push(f.render_s);
-            sub.push(f.info.subframes as f64);
+            // Swap the order every frame, so neither pays for the other's cold caches.
+            let order = if i % 2 == 0 {
+                [Visibility::Marched, Visibility::Rasterized]
+            } else {
+                [Visibility::Rasterized, Visibility::Marched]
+            };
+            for vis in order {
+                let f = synth.render_frame_with(&renderer, i, vis);
+                let t = Instant::now();
+                let _ = encode_rgb(&f.rgb);
+                let _ = encode_depth_u16(&f.depth_raw);
+                let times = if vis == Visibility::Marched {
+                    &mut marched
+                } else {
+                    &mut raster
+                };
+                times.encode_s.push(t.elapsed().as_secs_f64());
+                times.render_s.push(f.render_s);
+                times.marched.push(f.marched_rays as f64);
+                subframes.push(f.info.subframes as f64);
+            }
         }
-        let r = median(render);
+        let label = if blur { "with blur" } else { "no blur" };
+        let (rm, rr) = (median(marched.render_s), median(raster.render_s));
+        for (name, r) in [("marched", rm), ("rasterised", rr)] {
+            crate::outln!(
+                "{label:<10} {name:<11} render {:>7.1} ms/frame ({:>5.1} frames/s)",
+                r * 1e3,
+                1.0 / r
+            )?;
+        }
         crate::outln!(
-            "{:<12} render {:>7.1} ms/frame ({:>5.1} frames/s), PNG encoding {:>5.1} ms/frame, sub-frames {:.0}",
-            if blur { "with blur" } else { "no blur" },
-            r * 1e3,
-            1.0 / r,
-            median(encode) * 1e3,
-            median(sub)
+            "{label:<10} rasterised / marched time {:.3} ({:.1}x faster); PNG encoding {:.1} ms/frame; sub-frames {:.0}; rays marched by the rasteriser {:.0} per frame (of the depth pass)",
+            rr / rm,
+            rm / rr,
+            median(raster.encode_s) * 1e3,
+            median(subframes),
+            median(raster.marched)
         )?;
     }
     Ok(())

@@ -1,0 +1,526 @@
+//! Rasterised visibility for the terrain: which bilinear patch each pixel sees.
+//!
+//! Marching every pixel's ray through the height field's maximum mipmap costs about 0.6 µs
+//! a ray. Rasterising instead projects each patch (the square between four cell centres,
+//! split into two triangles) once per frame into a depth buffer, which names the nearest
+//! patch under every pixel centre; the ray is then intersected exactly with that one
+//! bilinear patch ([`intersect_patch`]). Where the two disagree (no patch, a ray that
+//! misses the named patch or enters it below the surface) the caller marches the ray as
+//! before, so the rasteriser changes which work is done, not the surface that is rendered.
+//!
+//! Frames: the terrain is in the world frame (z up, m); triangles are clipped against the
+//! camera's near plane in the camera frame (x right, y down, z forward, m) and projected
+//! with the pinhole model, pixel centres at integer coordinates.
+
+use super::terrain::HeightField;
+use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
+use stride_core::camera::PinholeCamera;
+
+/// Patches per side of a culling block.
+const BLOCK: usize = 16;
+/// Near clipping distance (m along the optical axis).
+const NEAR_M: f64 = 0.02;
+/// Image rows per rasterisation band (one rayon task each).
+const BAND_ROWS: usize = 24;
+/// Marker of a pixel that no patch covers.
+pub const NO_PATCH: u32 = u32::MAX;
+
+/// Per-scene data for rasterising a height field: the height range of each block of
+/// `BLOCK x BLOCK` patches, for culling blocks outside the view.
+#[derive(Debug, Clone)]
+pub struct TerrainRaster {
+    /// Patch rows and columns (cell-centre rows and columns minus one).
+    patch_rows: usize,
+    patch_cols: usize,
+    /// Block rows and columns.
+    block_rows: usize,
+    block_cols: usize,
+    /// Lowest and highest vertex height (m) of each block.
+    block_range: Vec<(f32, f32)>,
+}
+
+/// The nearest patch under each pixel centre of one view.
+#[derive(Debug, Clone, Default)]
+pub struct PatchBuffer {
+    /// Image width (px).
+    pub width: usize,
+    /// Patch index (`row * patch_cols + col`) per pixel, row-major; [`NO_PATCH`] if none.
+    pub patch: Vec<u32>,
+    /// `1 / z` (1/m, camera frame) of the nearest triangle per pixel; 0 if none.
+    inv_z: Vec<f32>,
+}
+
+/// One projected terrain vertex: camera-frame position (m) and, in front of the near
+/// plane, pixel coordinates and `1 / z`.
+#[derive(Debug, Clone, Copy, Default)]
+struct Vertex {
+    p_camera: [f32; 3],
+    uvw: [f32; 3],
+}
+
+/// A visible block's projected vertices, `(BLOCK + 1)^2` at most, row-major.
+struct ProjectedBlock {
+    /// First patch row and column of the block.
+    row0: usize,
+    col0: usize,
+    /// Patches in the block along rows and columns.
+    rows: usize,
+    cols: usize,
+    /// Rows of the image the block may cover (inclusive).
+    v_range: (f32, f32),
+    vertices: Vec<Vertex>,
+}
+
+impl TerrainRaster {
+    /// Precomputes the block height ranges of `terrain`.
+    pub fn new(terrain: &HeightField) -> Self {
+        let g = terrain.grid().geometry;
+        let data = terrain.grid().as_slice();
+        let (patch_rows, patch_cols) = (g.rows.saturating_sub(1), g.cols.saturating_sub(1));
+        let (block_rows, block_cols) = (patch_rows.div_ceil(BLOCK), patch_cols.div_ceil(BLOCK));
+        let mut block_range = vec![(f32::INFINITY, f32::NEG_INFINITY); block_rows * block_cols];
+        for r in 0..g.rows {
+            let br = (r.min(patch_rows.saturating_sub(1)) / BLOCK).min(block_rows.max(1) - 1);
+            // A vertex on a block border belongs to both blocks.
+            let brs = [br, r.saturating_sub(1) / BLOCK];
+            for c in 0..g.cols {
+                let Some(&h) = data.get(r * g.cols + c) else {
+                    continue;
+                };
+                let bc = c.min(patch_cols.saturating_sub(1)) / BLOCK;
+                for &bri in &brs {
+                    for bci in [bc, c.saturating_sub(1) / BLOCK] {
+                        if let Some(e) = block_range.get_mut(bri * block_cols + bci) {
+                            e.0 = e.0.min(h);
+                            e.1 = e.1.max(h);
+                        }
+                    }
+                }
+            }
+        }
+        Self {
+            patch_rows,
+            patch_cols,
+            block_rows,
+            block_cols,
+            block_range,
+        }
+    }
+
+    /// Patch columns (for decoding [`PatchBuffer::patch`] indices).
+    pub fn patch_cols(&self) -> usize {
+        self.patch_cols
+    }
+
+    /// Fills `out` with the nearest patch under each pixel centre, up to `max_z_m` along
+    /// the optical axis. `row_poses` holds `world_from_camera` for each image row (a
+    /// rolling shutter) or one pose for all rows; with per-row poses each band of rows is
+    /// projected with the pose of its middle row, and `pad_px` (the image motion across the
+    /// rows, px) widens the culling.
+    pub fn rasterize(
+        &self,
+        terrain: &HeightField,
+        camera: &PinholeCamera,
+        row_poses: &[Isometry3<f64>],
+        pad_px: f64,
+        max_z_m: f64,
+        out: &mut PatchBuffer,
+    ) {
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
+        out.width = w;
+        out.patch.clear();
+        out.patch.resize(w * h, NO_PATCH);
+        out.inv_z.clear();
+        out.inv_z.resize(w * h, 0.0);
+        let Some(mid) = row_poses.get(row_poses.len() / 2) else {
+            return;
+        };
+        if self.patch_rows == 0 || self.patch_cols == 0 {
+            return;
+        }
+        let per_row = row_poses.len() > 1;
+        let pad = if per_row { pad_px.max(1.0) } else { 1.0 };
+        let camera_from_mid = mid.inverse();
+        let blocks: Vec<ProjectedBlock> = (0..self.block_rows * self.block_cols)
+            .into_par_iter()
+            .filter(|&b| self.in_view(b, terrain, camera, &camera_from_mid, pad, max_z_m))
+            .filter_map(|b| self.project_block(b, terrain, camera, &camera_from_mid))
+            .collect();
+        let pc = self.patch_cols;
+        out.patch
+            .par_chunks_mut(w * BAND_ROWS)
+            .zip(out.inv_z.par_chunks_mut(w * BAND_ROWS))
+            .enumerate()
+            .for_each(|(band, (patch, inv_z))| {
+                let r0 = band * BAND_ROWS;
+                let r1 = r0 + patch.len() / w.max(1); // exclusive
+                let mut target = Band {
+                    width: w,
+                    row0: r0,
+                    row1: r1,
+                    patch,
+                    inv_z,
+                };
+                let margin = if per_row { pad as f32 } else { 1.0 };
+                let camera_from_band = row_poses
+                    .get((r0 + r1) / 2)
+                    .or(row_poses.last())
+                    .map(|p| p.inverse())
+                    .filter(|_| per_row);
+                for blk in &blocks {
+                    if blk.v_range.1 < r0 as f32 - margin || blk.v_range.0 > r1 as f32 + margin {
+                        continue;
+                    }
+                    match &camera_from_band {
+                        None => blk.rasterize(camera, pc, &mut target),
+                        Some(cfw) => {
+                            let b = (blk.row0 / BLOCK) * self.block_cols + blk.col0 / BLOCK;
+                            if let Some(own) = self.project_block(b, terrain, camera, cfw) {
+                                own.rasterize(camera, pc, &mut target);
+                            }
+                        }
+                    }
+                }
+            });
+    }
+
+    /// Whether block `b`'s bounding box may be seen (pixel bounds widened by `pad_px`).
+    fn in_view(
+        &self,
+        b: usize,
+        terrain: &HeightField,
+        camera: &PinholeCamera,
+        camera_from_world: &Isometry3<f64>,
+        pad_px: f64,
+        max_z_m: f64,
+    ) -> bool {
+        let Some(&(lo, hi)) = self.block_range.get(b) else {
+            return false;
+        };
+        let (row0, col0) = ((b / self.block_cols) * BLOCK, (b % self.block_cols) * BLOCK);
+        let rows = BLOCK.min(self.patch_rows - row0);
+        let cols = BLOCK.min(self.patch_cols - col0);
+        let g = terrain.grid().geometry;
+        let (x0, y0) = g.center(row0, col0);
+        let (x1, y1) = g.center(row0 + rows, col0 + cols);
+        let (w, h) = (f64::from(camera.width()), f64::from(camera.height()));
+        let (xl, xr) = (
+            (-pad_px - camera.cx()) / camera.fx(),
+            (w - 1.0 + pad_px - camera.cx()) / camera.fx(),
+        );
+        let (yt, yb) = (
+            (-pad_px - camera.cy()) / camera.fy(),
+            (h - 1.0 + pad_px - camera.cy()) / camera.fy(),
+        );
+        let mut outside = [true; 6];
+        for &x in &[x0, x1] {
+            for &y in &[y0, y1] {
+                for &z in &[f64::from(lo), f64::from(hi)] {
+                    let p = camera_from_world * Point3::new(x, y, z);
+                    let tests = [
+                        p.z < NEAR_M,
+                        p.z > max_z_m,
+                        p.x < xl * p.z,
+                        p.x > xr * p.z,
+                        p.y < yt * p.z,
+                        p.y > yb * p.z,
+                    ];
+                    for (o, t) in outside.iter_mut().zip(tests) {
+                        *o &= t;
+                    }
+                }
+            }
+        }
+        !outside.iter().any(|&o| o)
+    }
+
+    /// Projects block `b`'s vertices into the camera.
+    fn project_block(
+        &self,
+        b: usize,
+        terrain: &HeightField,
+        camera: &PinholeCamera,
+        camera_from_world: &Isometry3<f64>,
+    ) -> Option<ProjectedBlock> {
+        let (row0, col0) = ((b / self.block_cols) * BLOCK, (b % self.block_cols) * BLOCK);
+        let rows = BLOCK.min(self.patch_rows.checked_sub(row0)?);
+        let cols = BLOCK.min(self.patch_cols.checked_sub(col0)?);
+        let g = terrain.grid().geometry;
+        let data = terrain.grid().as_slice();
+        let mut vertices = Vec::with_capacity((rows + 1) * (cols + 1));
+        let (mut vmin, mut vmax) = (f32::INFINITY, f32::NEG_INFINITY);
+        let (fx, fy, cx, cy) = (camera.fx(), camera.fy(), camera.cx(), camera.cy());
+        for r in row0..=row0 + rows {
+            for c in col0..=col0 + cols {
+                let z_world = f64::from(*data.get(r * g.cols + c)?);
+                let (x, y) = g.center(r, c);
+                let p = camera_from_world * Point3::new(x, y, z_world);
+                let mut v = Vertex {
+                    p_camera: [p.x as f32, p.y as f32, p.z as f32],
+                    uvw: [0.0; 3],
+                };
+                if p.z >= NEAR_M {
+                    let inv = 1.0 / p.z;
+                    let (u, vv) = (fx * p.x * inv + cx, fy * p.y * inv + cy);
+                    v.uvw = [u as f32, vv as f32, inv as f32];
+                    vmin = vmin.min(vv as f32);
+                    vmax = vmax.max(vv as f32);
+                } else {
+                    // Clipped triangles may reach any row.
+                    vmin = f32::NEG_INFINITY;
+                    vmax = f32::INFINITY;
+                }
+                vertices.push(v);
+            }
+        }
+        Some(ProjectedBlock {
+            row0,
+            col0,
+            rows,
+            cols,
+            v_range: (vmin, vmax),
+            vertices,
+        })
+    }
+}
+
+/// The rows of the buffers one task fills.
+struct Band<'a> {
+    width: usize,
+    row0: usize,
+    row1: usize,
+    patch: &'a mut [u32],
+    inv_z: &'a mut [f32],
+}
+
+impl ProjectedBlock {
+    fn rasterize(&self, camera: &PinholeCamera, patch_cols: usize, band: &mut Band<'_>) {
+        let stride = self.cols + 1;
+        for i in 0..self.rows {
+            for j in 0..self.cols {
+                let k = i * stride + j;
+                let (Some(&a), Some(&b), Some(&c), Some(&d)) = (
+                    self.vertices.get(k),
+                    self.vertices.get(k + 1),
+                    self.vertices.get(k + stride),
+                    self.vertices.get(k + stride + 1),
+                ) else {
+                    continue;
+                };
+                let id = ((self.row0 + i) * patch_cols + self.col0 + j) as u32;
+                for tri in [[a, b, d], [a, d, c]] {
+                    let front = tri
+                        .iter()
+                        .filter(|v| v.p_camera[2] >= NEAR_M as f32)
+                        .count();
+                    if front == 3 {
+                        band.triangle(tri[0].uvw, tri[1].uvw, tri[2].uvw, id);
+                    } else if front > 0 {
+                        clip_near(&tri, camera, |p, q, r| band.triangle(p, q, r, id));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Clips a triangle against the near plane and emits the projected pieces (one or two).
+fn clip_near(
+    tri: &[Vertex; 3],
+    camera: &PinholeCamera,
+    mut emit: impl FnMut([f32; 3], [f32; 3], [f32; 3]),
+) {
+    let near = NEAR_M as f32;
+    let project = |p: [f32; 3]| -> [f32; 3] {
+        let inv = 1.0 / p[2];
+        [
+            camera.fx() as f32 * p[0] * inv + camera.cx() as f32,
+            camera.fy() as f32 * p[1] * inv + camera.cy() as f32,
+            inv,
+        ]
+    };
+    let mut poly: [[f32; 3]; 4] = [[0.0; 3]; 4];
+    let mut n = 0;
+    for k in 0..3 {
+        let (p, q) = (tri[k].p_camera, tri[(k + 1) % 3].p_camera);
+        let (pin, qin) = (p[2] >= near, q[2] >= near);
+        if pin {
+            if let Some(slot) = poly.get_mut(n) {
+                *slot = p;
+                n += 1;
+            }
+        }
+        if pin != qin {
+            let s = (near - p[2]) / (q[2] - p[2]);
+            let x = [p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near];
+            if let Some(slot) = poly.get_mut(n) {
+                *slot = x;
+                n += 1;
+            }
+        }
+    }
+    if n >= 3 {
+        let (a, b, c) = (project(poly[0]), project(poly[1]), project(poly[2]));
+        emit(a, b, c);
+        if n == 4 {
+            emit(a, c, project(poly[3]));
+        }
+    }
+}
+
+impl Band<'_> {
+    /// Rasterises one projected triangle `(u, v, 1/z)` into the band: every pixel centre
+    /// inside it (edges included, so shared edges leave no cracks) whose `1/z` is larger.
+    #[inline]
+    fn triangle(&mut self, a: [f32; 3], b: [f32; 3], c: [f32; 3], id: u32) {
+        let umin = a[0].min(b[0]).min(c[0]).ceil().max(0.0);
+        let umax = a[0]
+            .max(b[0])
+            .max(c[0])
+            .floor()
+            .min(self.width as f32 - 1.0);
+        let vmin = a[1].min(b[1]).min(c[1]).ceil().max(self.row0 as f32);
+        let vmax = a[1].max(b[1]).max(c[1]).floor().min(self.row1 as f32 - 1.0);
+        if umin > umax || vmin > vmax {
+            return;
+        }
+        let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+        if area.abs() < 1e-9 {
+            return;
+        }
+        let inv_area = 1.0 / area;
+        const EPS: f32 = -1e-5;
+        for v in (vmin as usize)..=(vmax as usize) {
+            let py = v as f32;
+            let row = (v - self.row0) * self.width;
+            for u in (umin as usize)..=(umax as usize) {
+                let px = u as f32;
+                let w0 = ((c[0] - b[0]) * (py - b[1]) - (c[1] - b[1]) * (px - b[0])) * inv_area;
+                let w1 = ((a[0] - c[0]) * (py - c[1]) - (a[1] - c[1]) * (px - c[0])) * inv_area;
+                let w2 = 1.0 - w0 - w1;
+                if w0 < EPS || w1 < EPS || w2 < EPS {
+                    continue;
+                }
+                let iz = w0 * a[2] + w1 * b[2] + w2 * c[2];
+                let idx = row + u;
+                if let (Some(dz), Some(dp)) = (self.inv_z.get_mut(idx), self.patch.get_mut(idx)) {
+                    if iz > *dz {
+                        *dz = iz;
+                        *dp = id;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The terrain's first hit along the unit ray `o + t d` (world, m), `t <= t_max`, looked
+/// for in rasterised `patch` and, if the ray misses it (the raster came from a slightly
+/// different pose, or a triangle's edge differs from the bilinear surface), in its eight
+/// neighbours. `None` means: march the ray.
+pub fn intersect_near_patch(
+    terrain: &HeightField,
+    patch_cols: usize,
+    patch: u32,
+    o: [f64; 3],
+    d: [f64; 3],
+    t_max: f64,
+) -> Option<f64> {
+    if let Some(t) = intersect_patch(terrain, patch_cols, patch, o, d, t_max) {
+        return Some(t);
+    }
+    let pc = patch_cols.max(1) as i64;
+    let rows = (terrain.grid().geometry.rows as i64 - 1).max(0);
+    let (i, j) = (i64::from(patch) / pc, i64::from(patch) % pc);
+    let mut best: Option<f64> = None;
+    for di in -1..=1 {
+        for dj in -1..=1 {
+            let (ni, nj) = (i + di, j + dj);
+            if (di, dj) == (0, 0) || ni < 0 || nj < 0 || ni >= rows || nj >= pc {
+                continue;
+            }
+            let limit = best.unwrap_or(t_max);
+            if let Some(t) =
+                intersect_patch(terrain, patch_cols, (ni * pc + nj) as u32, o, d, limit)
+            {
+                best = Some(t);
+            }
+        }
+    }
+    best
+}
+
+/// Exact first intersection of the unit ray `o + t d` (world, m) with bilinear patch
+/// `patch` (`row * patch_cols + col`) for `t` in `[0, t_max]`. `None` when the ray misses
+/// the patch, or enters it below the surface (its first crossing is then elsewhere).
+pub fn intersect_patch(
+    terrain: &HeightField,
+    patch_cols: usize,
+    patch: u32,
+    o: [f64; 3],
+    d: [f64; 3],
+    t_max: f64,
+) -> Option<f64> {
+    let g = terrain.grid().geometry;
+    let (i, j) = (
+        patch as usize / patch_cols.max(1),
+        patch as usize % patch_cols.max(1),
+    );
+    let data = terrain.grid().as_slice();
+    let k = i * g.cols + j;
+    let (v00, v01, v10, v11) = (
+        f64::from(*data.get(k)?),
+        f64::from(*data.get(k + 1)?),
+        f64::from(*data.get(k + g.cols)?),
+        f64::from(*data.get(k + g.cols + 1)?),
+    );
+    let inv_res = 1.0 / g.resolution;
+    // Patch-local coordinates: X along columns, Y along rows, both in [0, 1] on the patch.
+    let (ox, oy) = (
+        (o[0] - g.origin_x) * inv_res - j as f64,
+        (o[1] - g.origin_y) * inv_res - i as f64,
+    );
+    let (dx, dy) = (d[0] * inv_res, d[1] * inv_res);
+    let (mut t_in, mut t_out) = (0.0f64, t_max);
+    for (oc, dc) in [(ox, dx), (oy, dy)] {
+        if dc.abs() < 1e-15 {
+            if !(0.0..=1.0).contains(&oc) {
+                return None;
+            }
+        } else {
+            let (ta, tb) = (-oc / dc, (1.0 - oc) / dc);
+            t_in = t_in.max(ta.min(tb));
+            t_out = t_out.min(ta.max(tb));
+        }
+    }
+    if t_in > t_out {
+        return None;
+    }
+    // f(t) = ray height - surface height = c0 + c1 t + c2 t^2.
+    let (ex, ey, kk) = (v01 - v00, v10 - v00, v00 - v01 - v10 + v11);
+    let c0 = o[2] - v00 - ex * ox - ey * oy - kk * ox * oy;
+    let c1 = d[2] - ex * dx - ey * dy - kk * (ox * dy + dx * oy);
+    let c2 = -kk * dx * dy;
+    let f = |t: f64| c0 + t * (c1 + t * c2);
+    if f(t_in) <= 0.0 {
+        return None;
+    }
+    let slack = 1e-9 * (1.0 + t_out);
+    let in_range = |t: f64| t >= t_in && t <= t_out + slack;
+    if c2.abs() <= 1e-12 * (c1.abs() + c0.abs()) {
+        let t = -c0 / c1;
+        return (c1 != 0.0 && in_range(t)).then_some(t.min(t_out));
+    }
+    let disc = c1 * c1 - 4.0 * c2 * c0;
+    if disc < 0.0 {
+        return None;
+    }
+    let q = -0.5 * (c1 + c1.signum() * disc.sqrt());
+    let (r1, r2) = (q / c2, if q != 0.0 { c0 / q } else { f64::INFINITY });
+    let (lo, hi) = (r1.min(r2), r1.max(r2));
+    [lo, hi]
+        .into_iter()
+        .find(|&t| in_range(t))
+        .map(|t| t.min(t_out))
+}
