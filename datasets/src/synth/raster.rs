@@ -418,7 +418,8 @@ impl Band<'_> {
 /// The terrain's first hit along the unit ray `o + t d` (world, m), `t <= t_max`, looked
 /// for in rasterised `patch` and, if the ray misses it (the raster came from a slightly
 /// different pose, or a triangle's edge differs from the bilinear surface), in its eight
-/// neighbours. `None` means: march the ray.
+/// neighbours. Returns the distance (m) and the unit surface normal (world); `None` means:
+/// march the ray.
 pub fn intersect_near_patch(
     terrain: &HeightField,
     patch_cols: usize,
@@ -426,21 +427,21 @@ pub fn intersect_near_patch(
     o: [f64; 3],
     d: [f64; 3],
     t_max: f64,
-) -> Option<f64> {
-    if let Some(t) = intersect_patch(terrain, patch_cols, patch, o, d, t_max) {
-        return Some(t);
+) -> Option<(f64, [f64; 3])> {
+    if let Some(hit) = intersect_patch(terrain, patch_cols, patch, o, d, t_max) {
+        return Some(hit);
     }
     let pc = patch_cols.max(1) as i64;
     let rows = (terrain.grid().geometry.rows as i64 - 1).max(0);
     let (i, j) = (i64::from(patch) / pc, i64::from(patch) % pc);
-    let mut best: Option<f64> = None;
+    let mut best: Option<(f64, [f64; 3])> = None;
     for di in -1..=1 {
         for dj in -1..=1 {
             let (ni, nj) = (i + di, j + dj);
             if (di, dj) == (0, 0) || ni < 0 || nj < 0 || ni >= rows || nj >= pc {
                 continue;
             }
-            let limit = best.unwrap_or(t_max);
+            let limit = best.map_or(t_max, |b| b.0);
             if let Some(t) =
                 intersect_patch(terrain, patch_cols, (ni * pc + nj) as u32, o, d, limit)
             {
@@ -452,8 +453,9 @@ pub fn intersect_near_patch(
 }
 
 /// Exact first intersection of the unit ray `o + t d` (world, m) with bilinear patch
-/// `patch` (`row * patch_cols + col`) for `t` in `[0, t_max]`. `None` when the ray misses
-/// the patch, or enters it below the surface (its first crossing is then elsewhere).
+/// `patch` (`row * patch_cols + col`) for `t` in `[0, t_max]`: the distance (m) and the
+/// patch's unit normal there (as [`HeightField::normal`]). `None` when the ray misses the
+/// patch, or enters it below the surface (its first crossing is then elsewhere).
 pub fn intersect_patch(
     terrain: &HeightField,
     patch_cols: usize,
@@ -461,7 +463,7 @@ pub fn intersect_patch(
     o: [f64; 3],
     d: [f64; 3],
     t_max: f64,
-) -> Option<f64> {
+) -> Option<(f64, [f64; 3])> {
     let g = terrain.grid().geometry;
     let (i, j) = (
         patch as usize / patch_cols.max(1),
@@ -508,19 +510,26 @@ pub fn intersect_patch(
     }
     let slack = 1e-9 * (1.0 + t_out);
     let in_range = |t: f64| t >= t_in && t <= t_out + slack;
-    if c2.abs() <= 1e-12 * (c1.abs() + c0.abs()) {
+    let t = if c2.abs() <= 1e-12 * (c1.abs() + c0.abs()) {
         let t = -c0 / c1;
-        return (c1 != 0.0 && in_range(t)).then_some(t.min(t_out));
-    }
-    let disc = c1 * c1 - 4.0 * c2 * c0;
-    if disc < 0.0 {
-        return None;
-    }
-    let q = -0.5 * (c1 + c1.signum() * disc.sqrt());
-    let (r1, r2) = (q / c2, if q != 0.0 { c0 / q } else { f64::INFINITY });
-    let (lo, hi) = (r1.min(r2), r1.max(r2));
-    [lo, hi]
-        .into_iter()
-        .find(|&t| in_range(t))
-        .map(|t| t.min(t_out))
+        (c1 != 0.0 && in_range(t)).then_some(t.min(t_out))?
+    } else {
+        let disc = c1 * c1 - 4.0 * c2 * c0;
+        if disc < 0.0 {
+            return None;
+        }
+        let q = -0.5 * (c1 + c1.signum() * disc.sqrt());
+        let (r1, r2) = (q / c2, if q != 0.0 { c0 / q } else { f64::INFINITY });
+        let (lo, hi) = (r1.min(r2), r1.max(r2));
+        [lo, hi].into_iter().find(|&t| in_range(t))?.min(t_out)
+    };
+    // Slopes (m/m) of the bilinear patch at the hit, clamped to the patch.
+    let (fx, fy) = (
+        (ox + t * dx).clamp(0.0, 1.0),
+        (oy + t * dy).clamp(0.0, 1.0),
+    );
+    let sx = (ex + kk * fy) * inv_res;
+    let sy = (ey + kk * fx) * inv_res;
+    let n = (sx * sx + sy * sy + 1.0).sqrt();
+    Some((t, [-sx / n, -sy / n, 1.0 / n]))
 }

@@ -165,15 +165,16 @@ impl<'a> Renderer<'a> {
                     Some(NO_PATCH) => return None,
                     Some(patch) => {
                         let pc = self.raster.patch_cols();
-                        if let Some(t) = intersect_near_patch(terrain, pc, patch, o, d, self.max_t)
+                        if let Some((t, n)) =
+                            intersect_near_patch(terrain, pc, patch, o, d, self.max_t)
                         {
-                            return (t <= limit).then_some(t);
+                            return (t <= limit).then_some((t, Some(n)));
                         }
                     }
                     None => {}
                 }
                 *marched += 1;
-                terrain.intersect(o, d, limit).map(|h| h.t)
+                terrain.intersect(o, d, limit).map(|h| (h.t, None))
             });
         match hit {
             None => (

@@ -326,13 +326,14 @@ impl Scene {
         v: f64,
     ) -> Option<Hit> {
         self.trace_with(o, d, t_max, candidates, u, v, |limit| {
-            self.terrain.intersect(o, d, limit).map(|h| h.t)
+            self.terrain.intersect(o, d, limit).map(|h| (h.t, None))
         })
     }
 
     /// As [`Self::trace`], with the terrain's hit found by `terrain_t`: given the nearest
     /// object's distance (or `t_max`), it returns the terrain's first hit before it (m along
-    /// the ray), if any. The rasteriser passes an exact patch intersection here.
+    /// the ray), if any, with the surface normal there when already known. The rasteriser
+    /// passes an exact patch intersection here.
     #[allow(clippy::too_many_arguments)]
     #[inline]
     pub fn trace_with(
@@ -343,7 +344,7 @@ impl Scene {
         candidates: &[ScreenBox],
         u: f64,
         v: f64,
-        terrain_t: impl FnOnce(f64) -> Option<f64>,
+        terrain_t: impl FnOnce(f64) -> Option<(f64, Option<[f64; 3]>)>,
     ) -> Option<Hit> {
         let boxes = candidates
             .iter()
@@ -356,7 +357,7 @@ impl Scene {
     /// that are not a camera's pixels, such as a laser scanner's beams).
     pub fn trace_ray(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> Option<Hit> {
         self.nearest(o, d, t_max, self.boxes.iter(), |limit| {
-            self.terrain.intersect(o, d, limit).map(|h| h.t)
+            self.terrain.intersect(o, d, limit).map(|h| (h.t, None))
         })
     }
 
@@ -369,7 +370,7 @@ impl Scene {
         d: [f64; 3],
         t_max: f64,
         boxes: impl Iterator<Item = &'s SceneBox>,
-        terrain_t: impl FnOnce(f64) -> Option<f64>,
+        terrain_t: impl FnOnce(f64) -> Option<(f64, Option<[f64; 3]>)>,
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
@@ -384,11 +385,11 @@ impl Scene {
                 });
             }
         }
-        if let Some(t) = terrain_t(limit) {
+        if let Some((t, normal)) = terrain_t(limit) {
             let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
             best = Some(Hit {
                 t,
-                normal: self.terrain.normal(x, y),
+                normal: normal.unwrap_or_else(|| self.terrain.normal(x, y)),
                 material: Material::Ground,
                 uv: (x, y),
             });
