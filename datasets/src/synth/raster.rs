@@ -524,10 +524,7 @@ pub fn intersect_patch(
         [lo, hi].into_iter().find(|&t| in_range(t))?.min(t_out)
     };
     // Slopes (m/m) of the bilinear patch at the hit, clamped to the patch.
-    let (fx, fy) = (
-        (ox + t * dx).clamp(0.0, 1.0),
-        (oy + t * dy).clamp(0.0, 1.0),
-    );
+    let (fx, fy) = ((ox + t * dx).clamp(0.0, 1.0), (oy + t * dy).clamp(0.0, 1.0));
     let sx = (ex + kk * fy) * inv_res;
     let sy = (ey + kk * fx) * inv_res;
     let n = (sx * sx + sy * sy + 1.0).sqrt();
