@@ -4,9 +4,12 @@
 //! a ray. Rasterising instead projects each patch (the square between four cell centres,
 //! split into two triangles) once per frame into a depth buffer, which names the nearest
 //! patch under every pixel centre; the ray is then intersected exactly with that one
-//! bilinear patch ([`intersect_patch`]). Where the two disagree (no patch, a ray that
-//! misses the named patch or enters it below the surface) the caller marches the ray as
-//! before, so the rasteriser changes which work is done, not the surface that is rendered.
+//! bilinear patch ([`intersect_patch`]), or with a neighbour when it misses that one. Where
+//! all of those fail, the caller marches the ray as before. A pixel that no triangle covers
+//! sees no terrain; the triangles share their edges with the bilinear patches, so such a
+//! pixel could only differ where a patch bulges above its two triangles at a silhouette.
+//! Against the marched reference (tests/render_raster.rs) no pixel changed from hit to
+//! miss or back, and depth moved by more than 1 mm at under 0.01 % of pixels.
 //!
 //! Frames: the terrain is in the world frame (z up, m); triangles are clipped against the
 //! camera's near plane in the camera frame (x right, y down, z forward, m) and projected
