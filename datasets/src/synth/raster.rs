@@ -188,6 +188,15 @@ impl TerrainRaster {
             });
     }
 
+    /// Block `b`'s first patch row and column and its patch rows and columns (fewer than
+    /// `BLOCK` at the terrain's far edges), or `None` past the last block.
+    fn block_extent(&self, b: usize) -> Option<(usize, usize, usize, usize)> {
+        let (row0, col0) = ((b / self.block_cols) * BLOCK, (b % self.block_cols) * BLOCK);
+        let rows = BLOCK.min(self.patch_rows.checked_sub(row0)?);
+        let cols = BLOCK.min(self.patch_cols.checked_sub(col0)?);
+        Some((row0, col0, rows, cols))
+    }
+
     /// Whether block `b`'s bounding box may be seen (pixel bounds widened by `pad_px`).
     fn in_view(
         &self,
@@ -198,12 +207,11 @@ impl TerrainRaster {
         pad_px: f64,
         max_z_m: f64,
     ) -> bool {
-        let Some(&(lo, hi)) = self.block_range.get(b) else {
+        let (Some(&(lo, hi)), Some((row0, col0, rows, cols))) =
+            (self.block_range.get(b), self.block_extent(b))
+        else {
             return false;
         };
-        let (row0, col0) = ((b / self.block_cols) * BLOCK, (b % self.block_cols) * BLOCK);
-        let rows = BLOCK.min(self.patch_rows - row0);
-        let cols = BLOCK.min(self.patch_cols - col0);
         let g = terrain.grid().geometry;
         let (x0, y0) = g.center(row0, col0);
         let (x1, y1) = g.center(row0 + rows, col0 + cols);
@@ -246,9 +254,7 @@ impl TerrainRaster {
         camera: &PinholeCamera,
         camera_from_world: &Isometry3<f64>,
     ) -> Option<ProjectedBlock> {
-        let (row0, col0) = ((b / self.block_cols) * BLOCK, (b % self.block_cols) * BLOCK);
-        let rows = BLOCK.min(self.patch_rows.checked_sub(row0)?);
-        let cols = BLOCK.min(self.patch_cols.checked_sub(col0)?);
+        let (row0, col0, rows, cols) = self.block_extent(b)?;
         let g = terrain.grid().geometry;
         let data = terrain.grid().as_slice();
         let mut vertices = Vec::with_capacity((rows + 1) * (cols + 1));

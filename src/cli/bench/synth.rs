@@ -20,15 +20,6 @@ pub struct SynthBenchArgs {
     rolling_shutter_ms: f64,
 }
 
-/// Per-frame measurements of one renderer.
-#[derive(Default)]
-struct Times {
-    render_s: Vec<f64>,
-    encode_s: Vec<f64>,
-    /// Rays of the depth pass that were marched.
-    marched: Vec<f64>,
-}
-
 pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
     use stride_datasets::png_io::{encode_depth_u16, encode_rgb};
     use stride_datasets::synth::{motion::MotionConfig, Synth, SynthConfig};
@@ -54,8 +45,10 @@ pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
         config.camera.rolling_shutter_s = a.rolling_shutter_ms * 1e-3;
         let synth = Synth::new(config)?;
         let renderer = synth.renderer();
-        let (mut marched, mut raster) = (Times::default(), Times::default());
-        let mut subframes = Vec::new();
+        // Render times (s) of each renderer; PNG encoding, sub-frames and rays marched by
+        // the rasteriser (they do not depend on the renderer).
+        let (mut marched_s, mut raster_s) = (Vec::new(), Vec::new());
+        let (mut encode_s, mut subframes, mut rays_marched) = (Vec::new(), Vec::new(), Vec::new());
         for i in 0..a.frames {
             // Swap the order every frame, so neither pays for the other's cold caches.
             let order = if i % 2 == 0 {
@@ -65,22 +58,21 @@ pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
             };
             for vis in order {
                 let f = synth.render_frame_with(&renderer, i, vis);
+                if vis == Visibility::Marched {
+                    marched_s.push(f.render_s);
+                    continue;
+                }
                 let t = Instant::now();
                 let _ = encode_rgb(&f.rgb);
                 let _ = encode_depth_u16(&f.depth_raw);
-                let times = if vis == Visibility::Marched {
-                    &mut marched
-                } else {
-                    &mut raster
-                };
-                times.encode_s.push(t.elapsed().as_secs_f64());
-                times.render_s.push(f.render_s);
-                times.marched.push(f.marched_rays as f64);
+                encode_s.push(t.elapsed().as_secs_f64());
+                raster_s.push(f.render_s);
                 subframes.push(f.info.subframes as f64);
+                rays_marched.push(f.marched_rays as f64);
             }
         }
         let label = if blur { "with blur" } else { "no blur" };
-        let (rm, rr) = (median(marched.render_s), median(raster.render_s));
+        let (rm, rr) = (median(marched_s), median(raster_s));
         for (name, r) in [("marched", rm), ("rasterised", rr)] {
             crate::outln!(
                 "{label:<10} {name:<11} render {:>7.1} ms/frame ({:>5.1} frames/s)",
@@ -92,9 +84,9 @@ pub fn bench_synth(a: SynthBenchArgs) -> Result<()> {
             "{label:<10} rasterised / marched time {:.3} ({:.1}x faster); PNG encoding {:.1} ms/frame; sub-frames {:.0}; rays marched by the rasteriser {:.0} per frame (of the depth pass)",
             rr / rm,
             rm / rr,
-            median(raster.encode_s) * 1e3,
+            median(encode_s) * 1e3,
             median(subframes),
-            median(raster.marched)
+            median(rays_marched)
         )?;
     }
     Ok(())
