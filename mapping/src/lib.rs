@@ -13,6 +13,8 @@
 //! * [`stereo`]: paper 000's stereo uncertainty model (eqs. 5-9) and stereo artifact filter
 //!   (section 4.1).
 //! * [`metrics`]: MSE against ground truth, coverage, and the performance index (eq. 13).
+//! * [`align`]: a frame laid onto the map before it is integrated (height and tilt), for
+//!   poses whose orientation is less exact than the map.
 //! * [`post`]: the median filter that fills small holes and removes isolated cells.
 //! * [`error`]: what a mapper refuses to be built from (invalid parameters, inconsistent
 //!   frames); a mapper that exists has valid parameters.
@@ -20,6 +22,7 @@
 //! Mapping never depends on the SLAM crates: it takes poses and measurements, so it serves
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
 
+pub mod align;
 mod binned;
 mod checks;
 mod column;

@@ -212,6 +212,15 @@ impl StackMapper {
         &self.cfg
     }
 
+    /// The height (m) and variance (m²) of the established cell under map point `(x, y)`
+    /// (m), as the cell filter holds it now (before the median filter); `None` outside the
+    /// window or where the map knows nothing.
+    pub fn established_height(&self, x: f64, y: f64) -> Option<(f32, f32)> {
+        let i = self.window.index(self.window.world_cell(x, y))?;
+        let c = self.window.cells().get(i)?;
+        c.mapped().then_some((c.h, c.var))
+    }
+
     /// Keeps the window ahead of the sensor; evicted established columns go to the archive.
     fn recenter(&mut self, frame: &SensorFrame<'_>) {
         let archive = &mut self.archive;
