@@ -184,8 +184,6 @@ pub fn write_run(
 /// The report.json object of the elevation map.
 fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
     let s = &m.stats;
-    let (upd_med, upd_p95) = median_p95(s.update_s.iter().map(|t| t * 1e3));
-    let (reb_med, reb_p95) = median_p95(s.rebuild_s.iter().map(|t| t * 1e3));
     let floor = floor_fit(&m.layers.elevation, stride::known_poses::FLOOR_BAND_M);
     json!({
         "folder": "map",
@@ -195,15 +193,28 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
         "views_settled": s.views_settled,
         "views_unmapped": s.views_unmapped,
         "rebuilds": s.rebuilds,
-        "update_ms": {"median": upd_med, "p95": upd_p95},
-        "rebuild_ms": {"median": reb_med, "p95": reb_p95},
+        "update_ms": ms_json(s.update_s.iter().map(|t| t * 1e3)),
+        "rebuild_ms": ms_json(s.rebuild_s.iter().map(|t| t * 1e3)),
         "wall_s": m.wall_s,
         "queue_wait_s": s.queue_wait_s,
         "points_used": s.points_used,
         "rejected": serde_json::to_value(s.rejected).unwrap_or(Value::Null),
+        "alignment": {
+            "aligned": s.aligned.len(),
+            "too_few_points": s.align_too_few_points,
+            "too_large": s.align_too_large,
+            "shift_mm_abs": ms_json(s.aligned.iter().map(|a| a.0.abs() * 1e3)),
+            "tilt_deg": ms_json(s.aligned.iter().map(|a| a.1.to_degrees())),
+        },
         "floor": floor.and_then(|f| serde_json::to_value(f).ok()),
         "against_true_terrain": score.and_then(|sc| serde_json::to_value(sc).ok()),
     })
+}
+
+/// `{"median": .., "p95": ..}` of some values.
+fn ms_json(values: impl Iterator<Item = f64>) -> Value {
+    let (median, p95) = median_p95(values);
+    json!({"median": median, "p95": p95})
 }
 
 fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {

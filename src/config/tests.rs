@@ -110,6 +110,7 @@ fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
             "map.stack.resolution_m",
             "positive",
         ),
+        ("[map.align]\ngain = 1.5\n", "map.align.gain", "0 to 1"),
         (
             "[schedule]\nlag_frames = 1000\n",
             "schedule.lag_frames",

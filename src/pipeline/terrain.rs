@@ -12,6 +12,11 @@
 //! `max_stored_views` keep their copy; an older view is *settled*: integrated once into a
 //! second map (`settled`) that is never rebuilt, and its copy dropped. The map a caller
 //! sees is the live map laid over the settled one.
+//!
+//! Before a view is integrated it is laid onto the live map ([`TerrainConfig::align`],
+//! [`stride_mapping::align`]): its height and tilt are corrected so that its points meet the
+//! established cells. Errors of a few tenths of a degree in the SLAM's orientation would
+//! otherwise make a flat floor rough far from the camera; x, y and yaw stay the SLAM's.
 
 use super::PipelineError;
 use nalgebra::Isometry3;
@@ -19,6 +24,7 @@ use std::collections::{HashMap, VecDeque};
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
+use stride_mapping::align::{AlignConfig, AlignOutcome};
 use stride_mapping::input::{Rejections, SensorFrame};
 use stride_mapping::stack::{StackConfig, StackMapper};
 use stride_mapping::{ElevationMapper, MapLayers, MappingError};
@@ -44,6 +50,10 @@ pub struct TerrainConfig {
     /// are settled. Each costs 4 bytes per kept pixel (300 kB at 640 x 480 with
     /// decimation 2).
     pub max_stored_views: usize,
+    /// Each view's height and tilt laid onto the live map before it is integrated; `None`
+    /// integrates views at the SLAM's poses as they are.
+    #[serde(with = "stride_core::serde_opt")]
+    pub align: Option<AlignConfig>,
 }
 
 impl Default for TerrainConfig {
@@ -55,6 +65,7 @@ impl Default for TerrainConfig {
             rebuild_translation_m: 0.005,
             rebuild_rotation_rad: 0.005,
             max_stored_views: 120,
+            align: Some(AlignConfig::default()),
         }
     }
 }
@@ -96,6 +107,14 @@ impl TerrainConfig {
                 "1 to 1000",
             );
         }
+        if let Some(Err(MappingError::Parameter {
+            name,
+            value,
+            reason,
+        })) = self.align.as_ref().map(AlignConfig::validate)
+        {
+            return bad(&format!("map.align.{name}"), value.to_string(), reason);
+        }
         match self.stack.validate() {
             Ok(_) => Ok(()),
             Err(MappingError::Parameter {
@@ -133,6 +152,14 @@ pub struct TerrainStats {
     /// Time the frame path waited for room in the map thread's queue (s): 0 when the map
     /// kept up.
     pub queue_wait_s: f64,
+    /// Alignments of views to the map ([`TerrainConfig::align`]), rebuilds included: the
+    /// vertical shift at the camera (m) and the tilt (rad) of each correction applied.
+    pub aligned: Vec<(f64, f64)>,
+    /// Integrations left unaligned because the map had too few established cells under
+    /// the view (the first views, a view of new ground).
+    pub align_too_few_points: usize,
+    /// Integrations left unaligned because the correction found exceeded its limits.
+    pub align_too_large: usize,
 }
 
 /// A view: a frame's decimated depth and where it is.
@@ -144,8 +171,10 @@ struct Stored {
     /// Its keyframe, and its pose relative to it (`keyframe_from_camera`, the odometry's).
     keyframe: u64,
     keyframe_from_camera: Isometry3<f64>,
-    /// The `world_from_camera` (gravity-aligned world) it was integrated at.
+    /// The SLAM's `world_from_camera` (gravity-aligned world) when it was integrated ...
     mapped_at: Option<Isometry3<f64>>,
+    /// ... and the pose it was integrated at: that one, aligned to the map.
+    integrated_at: Option<Isometry3<f64>>,
 }
 
 /// The elevation map fed by keyframes.
@@ -237,6 +266,7 @@ impl Terrain {
             keyframe,
             keyframe_from_camera,
             mapped_at: None,
+            integrated_at: None,
         });
     }
 
@@ -299,7 +329,8 @@ impl Terrain {
             || delta.rotation.angle() > self.config.rebuild_rotation_rad
     }
 
-    /// Integrates stored keyframe `i` into the live map at `world_from_camera`.
+    /// Integrates stored view `i` into the live map at `world_from_camera` (the SLAM's),
+    /// aligned to the map first when [`TerrainConfig::align`] asks for it.
     fn integrate_stored(
         &mut self,
         i: usize,
@@ -308,11 +339,48 @@ impl Terrain {
         let Some(s) = self.stored.get_mut(i) else {
             return Ok(());
         };
-        let frame = SensorFrame::depth(&s.depth_m, &self.camera, world_from_camera, s.t_s)?;
+        let mut frame = SensorFrame::depth(&s.depth_m, &self.camera, world_from_camera, s.t_s)?;
+        let at = match self
+            .config
+            .align
+            .as_ref()
+            .map(|c| self.live.align(&frame, c))
+        {
+            Some(AlignOutcome::Aligned(a)) => {
+                self.stats.aligned.push((a.shift_m, a.tilt_rad));
+                tracing::trace!(
+                    "frame {}: aligned to the map by {:.1} mm, {:.3} deg ({} points, rms {:.1} -> {:.1} mm)",
+                    s.frame,
+                    a.shift_m * 1e3,
+                    a.tilt_rad.to_degrees(),
+                    a.points,
+                    a.rms_before_m * 1e3,
+                    a.rms_after_m * 1e3
+                );
+                a.correction * world_from_camera
+            }
+            Some(AlignOutcome::TooFewPoints(_)) => {
+                self.stats.align_too_few_points += 1;
+                world_from_camera
+            }
+            Some(AlignOutcome::TooLarge(a)) => {
+                tracing::debug!(
+                    "frame {}: alignment to the map refused ({:.1} mm, {:.2} deg)",
+                    s.frame,
+                    a.shift_m * 1e3,
+                    a.tilt_rad.to_degrees()
+                );
+                self.stats.align_too_large += 1;
+                world_from_camera
+            }
+            None => world_from_camera,
+        };
+        frame.map_from_sensor = at;
         let u = self.live.integrate(&frame);
         self.stats.points_used += u.points_used;
         self.stats.rejected.add(&u.rejected);
         s.mapped_at = Some(world_from_camera);
+        s.integrated_at = Some(at);
         Ok(())
     }
 
@@ -326,6 +394,7 @@ impl Terrain {
                 None => {
                     if let Some(s) = self.stored.get_mut(i) {
                         s.mapped_at = None;
+                        s.integrated_at = None;
                     }
                 }
             }
@@ -341,7 +410,7 @@ impl Terrain {
             let Some(s) = self.stored.pop_front() else {
                 break;
             };
-            match s.mapped_at {
+            match s.integrated_at {
                 Some(pose) => {
                     let frame = SensorFrame::depth(&s.depth_m, &self.camera, pose, s.t_s)?;
                     self.settled.integrate(&frame);
