@@ -114,9 +114,10 @@ pub struct Alignment {
     pub shift_m: f64,
     /// Its tilt (rad).
     pub tilt_rad: f64,
-    /// Points used in the last round.
+    /// Points on established cells within [`AlignConfig::outlier_m`] at the correction
+    /// applied.
     pub points: usize,
-    /// Weighted RMS of the height residuals before and after (m).
+    /// Weighted RMS of the height residuals before and after the correction applied (m).
     pub rms_before_m: f64,
     /// See `rms_before_m`.
     pub rms_after_m: f64,
@@ -132,6 +133,9 @@ pub enum AlignOutcome {
     TooFewPoints(usize),
     /// A correction beyond [`AlignConfig::max_shift_m`] or [`AlignConfig::max_tilt_rad`].
     TooLarge(Alignment),
+    /// Enough points, but they do not fix a tilt (all on one line): the normal equations
+    /// are singular.
+    Degenerate,
 }
 
 /// One point of a frame for the solve: its map-frame position at the frame's pose (m) and
@@ -152,7 +156,7 @@ impl StackMapper {
         let mut last = (0, f64::NAN);
         for round in 0..cfg.iterations {
             let Some(step) = solve(self, &samples, &correction, &centre, cfg) else {
-                return AlignOutcome::TooFewPoints(last.0);
+                return AlignOutcome::Degenerate;
             };
             if step.points < cfg.min_points {
                 return AlignOutcome::TooFewPoints(step.points);

@@ -107,13 +107,14 @@ impl TerrainConfig {
                 "1 to 1000",
             );
         }
-        if let Some(Err(MappingError::Parameter {
-            name,
-            value,
-            reason,
-        })) = self.align.as_ref().map(AlignConfig::validate)
-        {
-            return bad(&format!("map.align.{name}"), value.to_string(), reason);
+        match self.align.as_ref().map(AlignConfig::validate) {
+            Some(Err(MappingError::Parameter {
+                name,
+                value,
+                reason,
+            })) => return bad(&format!("map.align.{name}"), value.to_string(), reason),
+            Some(Err(e)) => return Err(e.into()),
+            _ => {}
         }
         match self.stack.validate() {
             Ok(_) => Ok(()),
@@ -152,13 +153,14 @@ pub struct TerrainStats {
     /// Time the frame path waited for room in the map thread's queue (s): 0 when the map
     /// kept up.
     pub queue_wait_s: f64,
-    /// Alignments of views to the map ([`TerrainConfig::align`]), rebuilds included: the
-    /// vertical shift at the camera (m) and the tilt (rad) of each correction applied.
+    /// Views aligned to the map when first mapped ([`TerrainConfig::align`]; rebuilds
+    /// re-align but are not counted): the vertical shift at the camera (m) and the tilt
+    /// (rad) of each correction applied.
     pub aligned: Vec<(f64, f64)>,
-    /// Integrations left unaligned because the map had too few established cells under
-    /// the view (the first views, a view of new ground).
+    /// Views first mapped unaligned because the map had too few established cells under
+    /// them (the first views, a view of new ground) or the points could not fix a tilt.
     pub align_too_few_points: usize,
-    /// Integrations left unaligned because the correction found exceeded its limits.
+    /// Views first mapped unaligned because the correction found exceeded its limits.
     pub align_too_large: usize,
 }
 
@@ -315,7 +317,8 @@ impl Terrain {
             }
             let Some(pose) = *pose else { break };
             let start = Instant::now();
-            self.integrate_stored(i, pose)?;
+            let outcome = self.integrate_stored(i, pose)?;
+            self.count_alignment(outcome);
             self.stats.views_mapped += 1;
             self.stats.update_s.push(start.elapsed().as_secs_f64());
         }
@@ -329,25 +332,38 @@ impl Terrain {
             || delta.rotation.angle() > self.config.rebuild_rotation_rad
     }
 
+    /// Records how a view's first integration was aligned (rebuilds are not counted, so
+    /// that the counts add up to the views mapped).
+    fn count_alignment(&mut self, outcome: Option<AlignOutcome>) {
+        match outcome {
+            Some(AlignOutcome::Aligned(a)) => self.stats.aligned.push((a.shift_m, a.tilt_rad)),
+            Some(AlignOutcome::TooFewPoints(_) | AlignOutcome::Degenerate) => {
+                self.stats.align_too_few_points += 1;
+            }
+            Some(AlignOutcome::TooLarge(_)) => self.stats.align_too_large += 1,
+            None => {}
+        }
+    }
+
     /// Integrates stored view `i` into the live map at `world_from_camera` (the SLAM's),
-    /// aligned to the map first when [`TerrainConfig::align`] asks for it.
+    /// aligned to the map first when [`TerrainConfig::align`] asks for it; returns what the
+    /// alignment found (`None` without alignment or without such a view).
     fn integrate_stored(
         &mut self,
         i: usize,
         world_from_camera: Isometry3<f64>,
-    ) -> Result<(), PipelineError> {
+    ) -> Result<Option<AlignOutcome>, PipelineError> {
         let Some(s) = self.stored.get_mut(i) else {
-            return Ok(());
+            return Ok(None);
         };
         let mut frame = SensorFrame::depth(&s.depth_m, &self.camera, world_from_camera, s.t_s)?;
-        let at = match self
+        let outcome = self
             .config
             .align
             .as_ref()
-            .map(|c| self.live.align(&frame, c))
-        {
+            .map(|c| self.live.align(&frame, c));
+        let at = match outcome {
             Some(AlignOutcome::Aligned(a)) => {
-                self.stats.aligned.push((a.shift_m, a.tilt_rad));
                 tracing::trace!(
                     "frame {}: aligned to the map by {:.1} mm, {:.3} deg ({} points, rms {:.1} -> {:.1} mm)",
                     s.frame,
@@ -359,10 +375,6 @@ impl Terrain {
                 );
                 a.correction * world_from_camera
             }
-            Some(AlignOutcome::TooFewPoints(_)) => {
-                self.stats.align_too_few_points += 1;
-                world_from_camera
-            }
             Some(AlignOutcome::TooLarge(a)) => {
                 tracing::debug!(
                     "frame {}: alignment to the map refused ({:.1} mm, {:.2} deg)",
@@ -370,10 +382,9 @@ impl Terrain {
                     a.shift_m * 1e3,
                     a.tilt_rad.to_degrees()
                 );
-                self.stats.align_too_large += 1;
                 world_from_camera
             }
-            None => world_from_camera,
+            _ => world_from_camera,
         };
         frame.map_from_sensor = at;
         let u = self.live.integrate(&frame);
@@ -381,7 +392,7 @@ impl Terrain {
         self.stats.rejected.add(&u.rejected);
         s.mapped_at = Some(world_from_camera);
         s.integrated_at = Some(at);
-        Ok(())
+        Ok(outcome)
     }
 
     /// A new live map from every kept view with a pose (`poses`, one per view), in order.
@@ -390,7 +401,9 @@ impl Terrain {
         self.live = StackMapper::new(self.config.stack.clone())?;
         for (i, pose) in poses.iter().enumerate() {
             match *pose {
-                Some(p) => self.integrate_stored(i, p)?,
+                Some(p) => {
+                    self.integrate_stored(i, p)?;
+                }
                 None => {
                     if let Some(s) = self.stored.get_mut(i) {
                         s.mapped_at = None;

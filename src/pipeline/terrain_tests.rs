@@ -48,6 +48,21 @@ fn a_keyframe_the_back_end_moves_moves_its_terrain_with_it() {
     t.update().unwrap();
     let (h, cells) = median_height(&t);
     assert_eq!(t.stats().views_mapped, VIEWS);
+    // Every view's alignment is counted once: the first ones find no established cells,
+    // the later ones meet the floor where the pose puts it (no correction).
+    let s = t.stats();
+    assert_eq!(
+        s.aligned.len() + s.align_too_few_points + s.align_too_large,
+        VIEWS
+    );
+    assert!(!s.aligned.is_empty() && s.align_too_few_points > 0, "{s:?}");
+    assert!(
+        s.aligned
+            .iter()
+            .all(|(dz, tilt)| dz.abs() < 1e-3 && *tilt < 1e-3),
+        "{:?}",
+        s.aligned
+    );
     assert!(cells > 1000 && h.abs() < 0.003, "{h} m over {cells} cells");
     // The back end lifts the keyframe by 4 cm: the floor is rebuilt 4 cm higher, not
     // smeared between both heights.
