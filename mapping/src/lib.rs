@@ -23,6 +23,7 @@
 //! any SLAM. File formats are the caller's business (stride-datasets writes the grids).
 
 pub mod align;
+mod archive;
 mod binned;
 mod checks;
 mod column;

@@ -32,6 +32,7 @@
 //! The median fill of small holes ([`crate::post`]) is applied by
 //! [`ElevationMapper::finished`], when [`StackConfig::median_filter`] asks for it.
 
+use crate::archive::{Archive, Archived};
 use crate::checks::{LosTable, SeeThrough, Target};
 use crate::column::{Accs, Cell, Stack, Voxel};
 use crate::error::{self, MappingError};
@@ -44,7 +45,6 @@ use crate::post::{median_filter, MedianFilter, MedianStats};
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
 use rayon::prelude::*;
-use std::collections::HashMap;
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
@@ -88,6 +88,10 @@ pub struct StackConfig {
     pub lookahead_m: f64,
     /// The window moves when its desired centre is farther than this from its centre (m).
     pub recenter_threshold_m: f64,
+    /// Most columns kept in the archive of columns the window left behind (16 bytes each);
+    /// beyond it the tiles farthest from the window are dropped (counted by
+    /// [`StackMapper::archive_cells`]). At least 1.
+    pub archive_max_cells: usize,
     /// The sensor model.
     pub sensor: PrimeSenseHeight,
     /// Depth-edge (flying pixel) filter on depth images, the sensor front end that paper
@@ -117,20 +121,12 @@ impl Default for StackConfig {
             see_through_check: true,
             lookahead_m: 1.2,
             recenter_threshold_m: 0.3,
+            archive_max_cells: 8_000_000,
             sensor: PrimeSenseHeight::default(),
             edge_filter: Some(EdgeFilter::default()),
             median_filter: Some(MedianFilter::default()),
         }
     }
-}
-
-/// An archived (evicted) column: its exported values.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Archived {
-    h: f32,
-    var: f32,
-    vitality: u8,
-    updates: u32,
 }
 
 /// Paper 000's voxel-stack elevation mapper. See the module documentation.
@@ -141,7 +137,7 @@ pub struct StackMapper {
     stacks: Vec<Stack>,
     /// Per-frame accumulators, by the same storage index.
     accs: Vec<Accs>,
-    archive: HashMap<(i64, i64), Archived>,
+    archive: Archive,
     rays: RayCache,
     binned: Binned,
     /// Per band: columns not yet established whose vitality may decay.
@@ -178,6 +174,13 @@ impl StackConfig {
             });
         }
         error::positive("visibility_bin_m", self.visibility_bin_m)?;
+        if self.archive_max_cells == 0 {
+            return Err(MappingError::Parameter {
+                name: "archive_max_cells",
+                value: 0.0,
+                reason: "must be at least 1",
+            });
+        }
         error::depth_range(self.sensor.min_depth_m, self.sensor.max_depth_m)?;
         if let Some(e) = &self.edge_filter {
             e.validate()?;
@@ -197,7 +200,7 @@ impl StackMapper {
             stacks: vec![Stack::default(); size * size],
             accs: vec![Accs::default(); size * size],
             window,
-            archive: HashMap::new(),
+            archive: Archive::default(),
             rays: RayCache::default(),
             binned: Binned::default(),
             pending: vec![Vec::new(); BANDS],
@@ -210,6 +213,17 @@ impl StackMapper {
     /// The parameters.
     pub fn config(&self) -> &StackConfig {
         &self.cfg
+    }
+
+    /// The archive of columns the window left behind: columns in it now, columns dropped
+    /// from it so far to keep [`StackConfig::archive_max_cells`], and columns resumed from
+    /// it so far when the window came back over them.
+    pub fn archive_cells(&self) -> (usize, usize, usize) {
+        (
+            self.archive.len(),
+            self.archive.dropped(),
+            self.archive.taken(),
+        )
     }
 
     /// The height (m) and variance (m²) of the established cell under map point `(x, y)`
@@ -250,6 +264,10 @@ impl StackMapper {
                 list.retain(|&ci| cells.get(ci as usize).is_some_and(|c| c.pending));
             }
             self.reload_archived();
+            let n = self.window.size() as i64;
+            let (r0, c0) = self.window.origin();
+            self.archive
+                .cap(self.cfg.archive_max_cells, (r0 + n / 2, c0 + n / 2));
         }
     }
 
@@ -264,7 +282,7 @@ impl StackMapper {
         let entered = self.window.entered().to_vec();
         for i in entered {
             let key = self.window.cell_of_index(i);
-            let Some(a) = self.archive.remove(&key) else {
+            let Some(a) = self.archive.remove(key) else {
                 continue;
             };
             let (Some(c), Some(st)) = (self.window.cells_mut().get_mut(i), self.stacks.get_mut(i))
@@ -411,7 +429,7 @@ impl ElevationMapper for StackMapper {
         self.window.memory_bytes()
             + self.stacks.capacity() * std::mem::size_of::<Stack>()
             + self.accs.capacity() * std::mem::size_of::<Accs>()
-            + self.archive.capacity() * std::mem::size_of::<((i64, i64), Archived)>()
+            + self.archive.memory_bytes()
             + self.binned.memory_bytes()
             + self.los_table.capacity() * std::mem::size_of::<f32>()
     }
@@ -505,26 +523,22 @@ impl ElevationMapper for StackMapper {
     }
 
     fn export(&self) -> MapLayers {
-        let mut cells: HashMap<(i64, i64), Archived> = self.archive.clone();
-        for (i, c) in self.window.cells().iter().enumerate() {
-            if c.mapped() {
-                cells.insert(
-                    self.window.cell_of_index(i),
-                    Archived {
-                        h: c.h,
-                        var: c.var,
-                        vitality: c.vitality,
-                        updates: c.updates,
-                    },
-                );
-            }
-        }
-        MapLayers::from_cells(
-            self.cfg.resolution_m,
-            cells
-                .iter()
-                .map(|(&k, a)| (k, a.h, a.var, f32::from(a.vitality), a.updates as f32)),
-        )
+        // The archive holds only columns outside the window: the two never overlap.
+        let window = self
+            .window
+            .cells()
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.mapped())
+            .map(|(i, c)| {
+                let v = (c.h, c.var, f32::from(c.vitality), c.updates as f32);
+                (self.window.cell_of_index(i), v.0, v.1, v.2, v.3)
+            });
+        let archived = self
+            .archive
+            .iter()
+            .map(|(k, a)| (k, a.h, a.var, f32::from(a.vitality), a.updates as f32));
+        MapLayers::from_cells(self.cfg.resolution_m, archived.chain(window))
     }
 }
 

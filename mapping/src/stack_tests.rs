@@ -462,6 +462,37 @@ fn a_column_left_behind_resumes_when_the_window_comes_back() {
         m.archive.is_empty(),
         "the archive holds only columns outside the window"
     );
+    let (kept, dropped, resumed) = m.archive_cells();
+    assert_eq!((kept, dropped), (0, 0));
+    // The 5 x 5 cm patch: 25 columns.
+    assert!(resumed >= 25, "the patch's columns resumed: {resumed}");
+}
+
+#[test]
+fn the_archive_keeps_its_cap_by_dropping_the_farthest_columns() {
+    let mut m = StackMapper::new(StackConfig {
+        archive_max_cells: 20_000,
+        ..config()
+    })
+    .unwrap();
+    // A walk along x leaving a 0.5 x 0.5 m patch (2,500 columns) every metre.
+    for step in 0..12 {
+        let x = f64::from(step);
+        let pose = Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), Default::default())
+            * sensor_pose();
+        let patch = ground(x + 1.0, x + 1.5, 0.0, 0.5);
+        for _ in 0..3 {
+            integrate(&mut m, pose, &patch);
+        }
+    }
+    let (kept, dropped, _) = m.archive_cells();
+    assert!(
+        kept <= 20_000 && dropped > 0,
+        "{kept} kept, {dropped} dropped"
+    );
+    // The patches nearest the robot are kept, the first ones went.
+    assert!(height_at(&m, 10.2, 0.2).is_some());
+    assert!(height_at(&m, 1.2, 0.2).is_none());
 }
 
 /// A cell straddling a step follows the surface under its centre with the default
