@@ -5,6 +5,7 @@ mod ba;
 mod eval;
 mod map;
 mod map_reference;
+mod map_walk;
 mod mcap;
 mod octomap;
 mod scans;
@@ -30,6 +31,9 @@ pub enum BenchCommand {
     /// Elevation-map update time for full depth frames, ours and the Fankhauser baseline,
     /// frames decoded up front.
     Map(map::MapBenchArgs),
+    /// The stack map over a long walk out and back on a flat floor (10,000 frames by
+    /// default): peak RSS, the archive's cap, and the columns found again on return.
+    MapWalk(map_walk::MapWalkBenchArgs),
     /// Frames per second read from MCAP logs (raw, zstd, PNG) converted from a TUM folder,
     /// against reading the folder itself.
     Mcap(mcap::McapBenchArgs),
@@ -44,6 +48,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::Synth(a) => synth::bench_synth(a),
         BenchCommand::Vo(a) => slam::bench_vo(a),
         BenchCommand::Map(a) => map::bench_map(a),
+        BenchCommand::MapWalk(a) => map_walk::bench_map_walk(a),
         BenchCommand::Ba(a) => ba::bench_ba(a),
         BenchCommand::Mcap(a) => mcap::bench_mcap(a),
         BenchCommand::Scans(a) => scans::bench_scans(a),
