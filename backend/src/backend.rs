@@ -317,6 +317,19 @@ impl Backend {
             .filter_map(|&k| Some((k, self.map.keyframe(k)?.world_from_camera)))
             .collect();
         report.time_s = start.elapsed().as_secs_f64();
+        tracing::debug!(
+            "keyframe {id}: {} map points by track, {} by ORB, {} new, {} fused, {} outliers{}",
+            report.by_track,
+            report.by_orb,
+            report.new_points,
+            report.fused,
+            report.outliers,
+            if report.odometry_edge {
+                ", tied by its odometry"
+            } else {
+                ""
+            }
+        );
         Ok(KeyframeUpdate {
             keyframe_id: id,
             world_from_keyframe: self.map.pose_of(id).unwrap_or(predicted),
