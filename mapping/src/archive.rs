@@ -7,7 +7,8 @@
 //! [`TILE`] x [`TILE`] cells, 16 bytes per cell (a hash map of single cells took about 40),
 //! and only tiles that hold a cell exist. When the archive holds more than its cap, the tiles
 //! farthest from the robot are dropped whole (counted), so memory stays bounded however
-//! long the walk: at the default cap of 8 million cells (800 m² at 1 cm), about 130 MB.
+//! long the walk: at the default cap of 8 million cells (800 m² at 1 cm), 128 MB when the
+//! tiles are full (tiles at the edge of a walk's swath are partly empty).
 
 use std::collections::HashMap;
 

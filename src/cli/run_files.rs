@@ -206,6 +206,7 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
             "shift_mm_abs": ms_json(s.aligned.iter().map(|a| a.0.abs() * 1e3)),
             "tilt_deg": ms_json(s.aligned.iter().map(|a| a.1.to_degrees())),
         },
+        "archive_dropped_cells": s.archive_dropped_cells,
         "floor": floor.and_then(|f| serde_json::to_value(f).ok()),
         "against_true_terrain": score.and_then(|sc| serde_json::to_value(sc).ok()),
     })

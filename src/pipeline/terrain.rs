@@ -162,6 +162,9 @@ pub struct TerrainStats {
     pub align_too_few_points: usize,
     /// Views first mapped unaligned because the correction found exceeded its limits.
     pub align_too_large: usize,
+    /// Columns dropped from the maps' archives to keep `map.stack.archive_max_cells`
+    /// (the farthest first): 0 unless the walk covered more ground than the cap.
+    pub archive_dropped_cells: usize,
 }
 
 /// A view: a frame's decimated depth and where it is.
@@ -192,6 +195,8 @@ pub struct Terrain {
     keyframe_poses: HashMap<u64, Isometry3<f64>>,
     world_from_slam: Option<Isometry3<f64>>,
     stats: TerrainStats,
+    /// Archive columns dropped by live maps that rebuilds have since replaced.
+    dropped_by_replaced: usize,
 }
 
 impl Terrain {
@@ -232,6 +237,7 @@ impl Terrain {
             keyframe_poses: HashMap::new(),
             world_from_slam: None,
             stats: TerrainStats::default(),
+            dropped_by_replaced: 0,
         })
     }
 
@@ -322,7 +328,15 @@ impl Terrain {
             self.stats.views_mapped += 1;
             self.stats.update_s.push(start.elapsed().as_secs_f64());
         }
-        self.settle_excess()
+        let settled = self.settle_excess();
+        self.count_archive_drops();
+        settled
+    }
+
+    /// Brings [`TerrainStats::archive_dropped_cells`] up to date.
+    fn count_archive_drops(&mut self) {
+        self.stats.archive_dropped_cells =
+            self.dropped_by_replaced + self.live.archive_cells().1 + self.settled.archive_cells().1;
     }
 
     /// Whether a keyframe placed at `a` and now at `b` moved enough to rebuild.
@@ -398,6 +412,7 @@ impl Terrain {
     /// A new live map from every kept view with a pose (`poses`, one per view), in order.
     fn rebuild(&mut self, poses: &[Option<Isometry3<f64>>]) -> Result<(), PipelineError> {
         let start = Instant::now();
+        self.dropped_by_replaced += self.live.archive_cells().1;
         self.live = StackMapper::new(self.config.stack.clone())?;
         for (i, pose) in poses.iter().enumerate() {
             match *pose {
@@ -472,6 +487,7 @@ impl Terrain {
         if moved {
             self.rebuild(&now)?;
         }
+        self.count_archive_drops();
         let layers = self.layers()?;
         Ok((layers, self.stats))
     }

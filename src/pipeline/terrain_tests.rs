@@ -166,3 +166,30 @@ fn invalid_settings_are_refused_by_key() {
         .to_string();
     assert!(err.contains("resolution_m"), "{err}");
 }
+
+#[test]
+fn columns_dropped_at_the_archive_cap_are_counted() {
+    let camera = PinholeCamera::KINECT_DEFAULT;
+    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
+    let dropped = |cap: usize| {
+        let mut config = TerrainConfig::default();
+        config.stack.archive_max_cells = cap;
+        let mut t = Terrain::new(&camera, config).unwrap();
+        t.set_world(Isometry3::identity());
+        // Three places 2.5 m apart: the window leaves the first two behind.
+        for (i, x) in [0.0, 2.5, 5.0].into_iter().enumerate() {
+            for v in 0..VIEWS {
+                let frame = i * VIEWS + v;
+                t.add_view(frame, frame as f64, &floor, i as u64, Isometry3::identity());
+            }
+            let pose =
+                Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity())
+                    * looking_down(1.0);
+            t.set_poses(&[(i as u64, pose)]);
+            t.update().unwrap();
+        }
+        t.stats().archive_dropped_cells
+    };
+    assert_eq!(dropped(8_000_000), 0);
+    assert!(dropped(1_000) > 0);
+}

@@ -147,7 +147,7 @@ pub fn bench_map_walk(a: MapWalkBenchArgs) -> Result<()> {
         "archive_cells": archived,
         "archive_dropped_cells": dropped,
         "archive_resumed_cells": resumed,
-        "archive_mb": mapper.memory_bytes() as f64 / 1e6,
+        "mapper_mb": mapper.memory_bytes() as f64 / 1e6,
         "update_ms": {"median": med, "p95": p95},
         "peak_rss_mb": {"start": rss_start, "after_walk": rss_walk, "after_export": rss_export},
         "export_cells": end.elevation.geometry.rows * end.elevation.geometry.cols,
