@@ -13,6 +13,8 @@
 //!   Markdown summaries, comparisons between results.
 //! * [`known_poses`]: elevation maps of a recorded sequence with known poses (ground truth
 //!   or a trajectory file), several mappers side by side, scored against the true terrain.
+//! * [`study`]: paper 004's study of gait-dependent motion blur, one gait, speed and seed at
+//!   a time, on the synthetic lab.
 //!
 //! The stages themselves live in the workspace's crates: `stride-frontend` (odometry),
 //! `stride-backend` (feature map, bundle adjustment), `stride-mapping` (elevation maps),
@@ -25,6 +27,7 @@ pub mod config;
 pub mod eval_suite;
 pub mod known_poses;
 pub mod pipeline;
+pub mod study;
 
 pub use pipeline::{
     run_sequence, FrameRecord, FrameStatus, MapOutput, Pipeline, PipelineConfig, PipelineError,

@@ -14,6 +14,7 @@ mod map_figures;
 mod run;
 mod run_files;
 mod run_report;
+mod study;
 mod synth;
 
 use anyhow::Result;
@@ -61,6 +62,9 @@ enum Command {
     /// Measure speed (medians over repeated runs, ratios against peers run in the same session).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Studies on the synthetic lab: `study blur`, paper 004's gait-dependent motion blur.
+    #[command(subcommand)]
+    Study(study::StudyCommand),
 }
 
 /// Prints to stdout, returning an error (instead of panicking like `println!`) when stdout
@@ -131,6 +135,7 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Eval(c) => eval::run(c),
         Command::Bench(c) => bench::run(c),
+        Command::Study(c) => study::run(c),
         Command::Synth(a) => synth::run(a),
         Command::Run(a) => run::run(a),
         Command::Map(a) => map::run(a),

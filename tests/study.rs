@@ -1,0 +1,73 @@
+//! `stride study blur --quick`: the study's runs, table, report and the blur measures.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
+
+mod common;
+
+#[test]
+fn the_quick_blur_study_measures_each_run_and_sees_the_blur_in_the_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("study");
+    common::run_ok(&[
+        "study",
+        "blur",
+        "--quick",
+        "--quiet",
+        "--gaits",
+        "tripod",
+        "--speeds",
+        "0.3,0.95",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    let runs = j["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    let (slow, fast) = (&runs[0], &runs[1]);
+    assert_eq!(
+        (
+            slow["speed_fraction"].as_f64(),
+            fast["speed_fraction"].as_f64()
+        ),
+        (Some(0.3), Some(0.95))
+    );
+    for r in runs {
+        let frames = r["frames"].as_u64().unwrap();
+        assert_eq!(r["per_frame"].as_array().unwrap().len() as u64, frames);
+        assert_eq!(
+            r["tracked"].as_u64().unwrap() + r["lost"].as_u64().unwrap(),
+            frames
+        );
+        // Measured 0.4 and 1.1 mm on 320x240 frames.
+        let ate = r["ate_m"].as_f64().unwrap();
+        assert!(ate > 0.0 && ate < 0.005, "ATE {ate} m");
+    }
+    // Faster walking blurs more, and the image-only sharpness sees it within the run
+    // (measured correlation -0.91 with the true image motion).
+    let motion = |r: &serde_json::Value| r["image_motion_px_mean"].as_f64().unwrap();
+    assert!(
+        motion(fast) > 2.0 * motion(slow),
+        "{} vs {}",
+        motion(fast),
+        motion(slow)
+    );
+    let corr = fast["sharpness_motion_correlation"].as_f64().unwrap();
+    assert!(corr < -0.5, "correlation {corr}");
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("<svg") && html.contains("Table 1"));
+    // A second run into the same folder is refused without --overwrite.
+    let again = common::run(&[
+        "study",
+        "blur",
+        "--quick",
+        "--quiet",
+        "--gaits",
+        "tripod",
+        "--speeds",
+        "0.3",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!again.status.success());
+}
