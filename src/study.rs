@@ -10,8 +10,8 @@
 
 use crate::pipeline::{slam_ate_options, FrameStatus, Pipeline, PipelineConfig, PipelineError};
 use stride_core::frame::RgbdFrame;
-use stride_core::image::DepthImage;
 use stride_core::trajectory::Trajectory;
+use stride_datasets::png_io::depth_from_raw;
 use stride_datasets::synth::motion::{Gait, PathKind};
 use stride_datasets::synth::{Synth, SynthConfig, SynthError};
 use stride_eval::blur::{correlation, laplacian_variance};
@@ -43,7 +43,8 @@ pub enum StudyError {
     /// The evaluation against ground truth failed.
     #[error("evaluation: {0}")]
     Eval(#[from] EvalError),
-    /// A rendered image had an unexpected size.
+    /// A rendered frame's ground-truth pose could not join the trajectory (a time out of
+    /// order).
     #[error("frame {frame}: {message}")]
     Frame {
         /// Frame index.
@@ -158,22 +159,11 @@ pub fn run(
     config.odometry.seed = spec.seed;
     let mut pipeline = Pipeline::new(&sc.camera, config)?;
     let renderer = synth.renderer();
-    let to_m = 1.0 / sc.camera.depth_scale;
     let (mut gt, mut per_frame) = (Trajectory::new(), Vec::with_capacity(spec.frames));
     let mut t0 = None;
     for index in 0..spec.frames {
         let f = synth.render_frame(&renderer, index);
-        let (w, h) = (f.depth_raw.width(), f.depth_raw.height());
-        let depth: Vec<f32> = f
-            .depth_raw
-            .as_slice()
-            .iter()
-            .map(|&d| (f64::from(d) * to_m) as f32)
-            .collect();
-        let depth_m = DepthImage::from_vec(w, h, depth).map_err(|e| StudyError::Frame {
-            frame: index,
-            message: e.to_string(),
-        })?;
+        let depth_m = depth_from_raw(&f.depth_raw, sc.camera.depth_scale);
         let sharpness = laplacian_variance(&f.rgb.to_gray());
         let info = f.info;
         let frame = RgbdFrame {

@@ -20,7 +20,7 @@
 
 use crate::input::{Cloud, DepthPixel, HeightModel, SensorFrame};
 use crate::stack::StackMapper;
-use nalgebra::{Isometry3, Matrix3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the alignment of a frame to the map.
@@ -147,8 +147,9 @@ struct Sample {
 
 impl StackMapper {
     /// The correction that lays `frame` on the map's established cells (see the module
-    /// documentation). The map is not changed.
-    pub fn align(&self, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> AlignOutcome {
+    /// documentation). The map is not changed (only the ray table the update shares is
+    /// brought up to date for the frame's camera).
+    pub fn align(&mut self, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> AlignOutcome {
         let samples = samples(self, frame, cfg);
         let centre = frame.map_from_sensor.translation.vector;
         let mut correction = Isometry3::identity();
@@ -200,34 +201,38 @@ impl StackMapper {
 }
 
 /// The frame's usable points in the map frame at its pose, every `stride`-th one.
-fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> Vec<Sample> {
-    let sensor = &mapper.config().sensor;
+fn samples(mapper: &mut StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> Vec<Sample> {
     let stride = cfg.stride;
-    let (lo, hi) = sensor.range_m();
-    let hi = hi.min(cfg.max_depth_m);
     let pose = frame.map_from_sensor;
     let r3 = pose.rotation.inverse() * Vector3::z();
     let mut out = Vec::new();
     match frame.cloud() {
         Cloud::Depth { depth_m, camera } => {
+            let (rays, sensor) = mapper.rays_and_sensor(camera);
+            let (lo, hi) = sensor.range_m();
+            let hi = hi.min(cfg.max_depth_m);
+            let mut row = Vec::new();
             for v in (0..depth_m.height()).step_by(stride) {
+                rays.row(v as usize, depth_m.width() as usize, &mut row);
                 for u in (0..depth_m.width()).step_by(stride) {
                     let Some(d) = depth_m.get(u, v).map(f64::from) else {
+                        continue;
+                    };
+                    let Some(&(xn, yn)) = row.get(u as usize) else {
                         continue;
                     };
                     if !(d >= lo && d <= hi) {
                         continue;
                     }
-                    let n = camera.normalized_from_pixel(&Point2::new(f64::from(u), f64::from(v)));
                     let px = DepthPixel {
                         u: f64::from(u),
                         v: f64::from(v),
-                        xn: n.x,
-                        yn: n.y,
+                        xn,
+                        yn,
                         d_m: d,
                     };
                     out.push(Sample {
-                        p_map: pose * Point3::new(n.x * d, n.y * d, d),
+                        p_map: pose * Point3::new(xn * d, yn * d, d),
                         var_m2: sensor.pixel_variance(camera, &px, &r3),
                     });
                 }
@@ -237,6 +242,9 @@ fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> 
             points,
             covariances,
         } => {
+            let sensor = &mapper.config().sensor;
+            let (lo, hi) = sensor.range_m();
+            let hi = hi.min(cfg.max_depth_m);
             for (p, cov) in points.iter().zip(covariances).step_by(stride) {
                 if !(p.z >= lo && p.z <= hi) {
                     continue;

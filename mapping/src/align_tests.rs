@@ -61,19 +61,19 @@ fn believed(up_m: f64, tilt_rad: f64) -> Isometry3<f64> {
     err * true_pose()
 }
 
-fn align(m: &StackMapper, pose: Isometry3<f64>, cfg: &AlignConfig) -> AlignOutcome {
+fn align(m: &mut StackMapper, pose: Isometry3<f64>, cfg: &AlignConfig) -> AlignOutcome {
     let (pts, covs) = frame_points(&ground());
     m.align(&SensorFrame::points(&pts, &covs, pose, 0.0).unwrap(), cfg)
 }
 
 #[test]
 fn a_raised_and_tilted_view_is_laid_back_onto_the_map() {
-    let m = mapped_ground();
+    let mut m = mapped_ground();
     let full = AlignConfig {
         gain: 1.0,
         ..AlignConfig::default()
     };
-    let out = align(&m, believed(0.012, 0.6f64.to_radians()), &full);
+    let out = align(&mut m, believed(0.012, 0.6f64.to_radians()), &full);
     let AlignOutcome::Aligned(a) = out else {
         panic!("{out:?}");
     };
@@ -94,7 +94,8 @@ fn a_raised_and_tilted_view_is_laid_back_onto_the_map() {
         gain: 0.5,
         ..AlignConfig::default()
     };
-    let AlignOutcome::Aligned(h) = align(&m, believed(0.012, 0.6f64.to_radians()), &half) else {
+    let AlignOutcome::Aligned(h) = align(&mut m, believed(0.012, 0.6f64.to_radians()), &half)
+    else {
         panic!("not aligned");
     };
     assert!((h.shift_m + 0.006).abs() < 1e-3, "{h:?}");
@@ -106,8 +107,8 @@ fn a_raised_and_tilted_view_is_laid_back_onto_the_map() {
 
 #[test]
 fn a_view_at_the_right_pose_is_left_alone() {
-    let m = mapped_ground();
-    let AlignOutcome::Aligned(a) = align(&m, true_pose(), &AlignConfig::default()) else {
+    let mut m = mapped_ground();
+    let AlignOutcome::Aligned(a) = align(&mut m, true_pose(), &AlignConfig::default()) else {
         panic!("not aligned");
     };
     assert!(a.shift_m.abs() < 1e-4 && a.tilt_rad < 1e-4, "{a:?}");
@@ -115,23 +116,23 @@ fn a_view_at_the_right_pose_is_left_alone() {
 
 #[test]
 fn an_empty_map_or_a_large_correction_is_refused() {
-    let empty = StackMapper::new(StackConfig::default()).unwrap();
+    let mut empty = StackMapper::new(StackConfig::default()).unwrap();
     assert_eq!(
-        align(&empty, true_pose(), &AlignConfig::default()),
+        align(&mut empty, true_pose(), &AlignConfig::default()),
         AlignOutcome::TooFewPoints(0)
     );
-    let m = mapped_ground();
+    let mut m = mapped_ground();
     let cfg = AlignConfig {
         gain: 1.0,
         outlier_m: 0.2,
         ..AlignConfig::default()
     };
     assert!(matches!(
-        align(&m, believed(0.0, 3f64.to_radians()), &cfg),
+        align(&mut m, believed(0.0, 3f64.to_radians()), &cfg),
         AlignOutcome::TooLarge(_)
     ));
     assert!(matches!(
-        align(&m, believed(0.08, 0.0), &cfg),
+        align(&mut m, believed(0.08, 0.0), &cfg),
         AlignOutcome::TooLarge(_)
     ));
 }

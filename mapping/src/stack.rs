@@ -226,6 +226,16 @@ impl StackMapper {
         )
     }
 
+    /// The ray table of `camera` (rebuilt only when the camera changes, shared with the
+    /// update's input stage) and the sensor model, for a pass over a depth image beside the
+    /// update ([`StackMapper::align`]).
+    pub(crate) fn rays_and_sensor(
+        &mut self,
+        camera: &PinholeCamera,
+    ) -> (crate::input::Rays<'_>, &PrimeSenseHeight) {
+        (self.rays.rays(camera), &self.cfg.sensor)
+    }
+
     /// The height (m) and variance (m²) of the established cell under map point `(x, y)`
     /// (m), as the cell filter holds it now (before the median filter); `None` outside the
     /// window or where the map knows nothing.

@@ -16,6 +16,23 @@ fn looking_down(height_m: f64) -> Isometry3<f64> {
     )
 }
 
+/// Maps a flat floor 1 m below a downward-looking camera at each of `xs` (m along x):
+/// `VIEWS` views per place, each place its own keyframe, placed and mapped at once.
+fn map_floor_at(t: &mut Terrain, camera: &PinholeCamera, xs: &[f64]) {
+    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
+    for (i, &x) in xs.iter().enumerate() {
+        for v in 0..VIEWS {
+            let frame = i * VIEWS + v;
+            t.add_view(frame, frame as f64, &floor, i as u64, Isometry3::identity());
+        }
+        let pose =
+            Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity())
+                * looking_down(1.0);
+        t.set_poses(&[(i as u64, pose)]);
+        t.update().unwrap();
+    }
+}
+
 /// The median height of the map's known cells (m) and their count.
 fn median_height(t: &Terrain) -> (f64, usize) {
     let layers = t.layers().unwrap();
@@ -98,19 +115,8 @@ fn old_views_settle_and_stay_in_the_map() {
     };
     let mut t = Terrain::new(&camera, config).unwrap();
     t.set_world(Isometry3::identity());
-    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
-    // Two views 2 m apart, each its own keyframe.
-    for (i, x) in [0.0, 2.0].into_iter().enumerate() {
-        for v in 0..VIEWS {
-            let frame = i * VIEWS + v;
-            t.add_view(frame, frame as f64, &floor, i as u64, Isometry3::identity());
-        }
-        let pose =
-            Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity())
-                * looking_down(1.0);
-        t.set_poses(&[(i as u64, pose)]);
-        t.update().unwrap();
-    }
+    // Two places 2 m apart.
+    map_floor_at(&mut t, &camera, &[0.0, 2.0]);
     assert_eq!(
         (t.stats().views_settled, t.stats().views_mapped),
         (VIEWS, 2 * VIEWS)
@@ -170,24 +176,13 @@ fn invalid_settings_are_refused_by_key() {
 #[test]
 fn columns_dropped_at_the_archive_cap_are_counted() {
     let camera = PinholeCamera::KINECT_DEFAULT;
-    let floor = DepthImage::filled(camera.width(), camera.height(), 1.0);
     let dropped = |cap: usize| {
         let mut config = TerrainConfig::default();
         config.stack.archive_max_cells = cap;
         let mut t = Terrain::new(&camera, config).unwrap();
         t.set_world(Isometry3::identity());
         // Three places 2.5 m apart: the window leaves the first two behind.
-        for (i, x) in [0.0, 2.5, 5.0].into_iter().enumerate() {
-            for v in 0..VIEWS {
-                let frame = i * VIEWS + v;
-                t.add_view(frame, frame as f64, &floor, i as u64, Isometry3::identity());
-            }
-            let pose =
-                Isometry3::from_parts(Translation3::new(x, 0.0, 0.0), UnitQuaternion::identity())
-                    * looking_down(1.0);
-            t.set_poses(&[(i as u64, pose)]);
-            t.update().unwrap();
-        }
+        map_floor_at(&mut t, &camera, &[0.0, 2.5, 5.0]);
         t.stats().archive_dropped_cells
     };
     assert_eq!(dropped(8_000_000), 0);
