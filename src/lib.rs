@@ -15,6 +15,7 @@
 //!   or a trajectory file), several mappers side by side, scored against the true terrain.
 //! * [`study`]: paper 004's study of gait-dependent motion blur, one gait, speed and seed at
 //!   a time, on the synthetic lab.
+//! * [`vocab`]: training the place-recognition vocabulary on the synthetic lab.
 //!
 //! The stages themselves live in the workspace's crates: `stride-frontend` (odometry),
 //! `stride-backend` (feature map, bundle adjustment), `stride-mapping` (elevation maps),
@@ -28,6 +29,7 @@ pub mod eval_suite;
 pub mod known_poses;
 pub mod pipeline;
 pub mod study;
+pub mod vocab;
 
 pub use pipeline::{
     run_sequence, FrameRecord, FrameStatus, MapOutput, Pipeline, PipelineConfig, PipelineError,

@@ -19,6 +19,7 @@ pub mod features;
 pub mod keyframe;
 pub mod klt;
 pub mod motion;
+pub mod place;
 pub mod points;
 pub mod recovery;
 pub mod result;

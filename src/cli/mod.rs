@@ -16,6 +16,7 @@ mod run_files;
 mod run_report;
 mod study;
 mod synth;
+mod vocab;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -65,6 +66,9 @@ enum Command {
     /// Studies on the synthetic lab: `study blur`, paper 004's gait-dependent motion blur.
     #[command(subcommand)]
     Study(study::StudyCommand),
+    /// Train the place-recognition vocabulary on the synthetic lab (how the shipped one
+    /// was made).
+    Vocab(vocab::VocabArgs),
 }
 
 /// Prints to stdout, returning an error (instead of panicking like `println!`) when stdout
@@ -136,6 +140,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Eval(c) => eval::run(c),
         Command::Bench(c) => bench::run(c),
         Command::Study(c) => study::run(c),
+        Command::Vocab(a) => vocab::run(a),
         Command::Synth(a) => synth::run(a),
         Command::Run(a) => run::run(a),
         Command::Map(a) => map::run(a),
