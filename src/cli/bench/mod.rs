@@ -8,6 +8,7 @@ mod map_reference;
 mod map_walk;
 mod mcap;
 mod octomap;
+mod place;
 mod scans;
 mod slam;
 mod synth;
@@ -37,6 +38,9 @@ pub enum BenchCommand {
     /// Frames per second read from MCAP logs (raw, zstd, PNG) converted from a TUM folder,
     /// against reading the folder itself.
     Mcap(mcap::McapBenchArgs),
+    /// Place recognition (bags of words) on a real sequence: recall against exhaustive
+    /// descriptor matching, and the query time on 1,000 keyframes against exhaustive matching.
+    Place(place::PlaceBenchArgs),
     /// Paper 003's map update per 683-beam scan on a simulated walk, against a one-pass
     /// reference loop over the same returns.
     Scans(scans::ScansBenchArgs),
@@ -51,6 +55,7 @@ pub fn run(cmd: BenchCommand) -> Result<()> {
         BenchCommand::MapWalk(a) => map_walk::bench_map_walk(a),
         BenchCommand::Ba(a) => ba::bench_ba(a),
         BenchCommand::Mcap(a) => mcap::bench_mcap(a),
+        BenchCommand::Place(a) => place::bench_place(a),
         BenchCommand::Scans(a) => scans::bench_scans(a),
     }
 }
