@@ -105,6 +105,9 @@ pub struct Backend {
     /// follows was in it), kept apart from the map so that the latest keyframe can be
     /// culled.
     pub(crate) tracks: HashMap<u64, PointId>,
+    /// Keyframes' bags of words for loop candidates by appearance (empty when loop closure
+    /// or its appearance candidates are off).
+    pub(crate) places: crate::loop_closure::Places,
 }
 
 /// The information of a frontend pose estimate, moved into the optimizer's tangent space;
@@ -146,6 +149,7 @@ impl Backend {
     /// A back end for a camera. Validates the configuration.
     pub fn new(camera: PinholeCamera, config: BackendConfig) -> Result<Self, BackendError> {
         config.validate()?;
+        let places = crate::loop_closure::Places::new(&config.loop_closure)?;
         Ok(Self {
             config,
             camera,
@@ -154,6 +158,7 @@ impl Backend {
             newest: None,
             pose_edges: Vec::new(),
             tracks: HashMap::new(),
+            places,
         })
     }
 
@@ -168,6 +173,10 @@ impl Backend {
         let mut backend = Self::new(camera, config)?;
         backend.first = map.keyframes().keys().next().copied();
         backend.map = map;
+        let ids: Vec<KeyframeId> = backend.map.keyframes().keys().copied().collect();
+        for id in ids {
+            backend.index_place(id);
+        }
         Ok(backend)
     }
 

@@ -219,11 +219,15 @@ impl BackendConfig {
             );
         }
         let l = &self.loop_closure;
-        if !(l.search_radius_m > 0.0 && l.candidates >= 1 && l.min_inliers >= 6) {
+        if !(l.search_radius_m > 0.0
+            && l.candidates >= 1
+            && l.min_inliers >= 6
+            && l.appearance_candidates <= 100)
+        {
             return bad(
                 "loop_closure",
                 format!("{l:?}"),
-                "search_radius_m > 0, candidates >= 1, min_inliers >= 6",
+                "search_radius_m > 0, candidates >= 1, min_inliers >= 6, appearance_candidates <= 100",
             );
         }
         Ok(())

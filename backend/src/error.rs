@@ -27,4 +27,7 @@ pub enum BackendError {
         /// What is wrong with it.
         reason: String,
     },
+    /// The place-recognition vocabulary could not be read.
+    #[error("place recognition: {0}")]
+    Place(#[from] stride_frontend::place::PlaceError),
 }

@@ -5,9 +5,12 @@
 //! Per keyframe, in bundle-adjustment mode:
 //! 1. Candidates: keyframes older than [`LoopParams::min_age_keyframes`] that the new one
 //!    is not tied to yet (it shares fewer than [`LoopParams::connected_points`] points with
-//!    them), looking the same way (within the local map's `nearby_angle_deg`); the
-//!    [`LoopParams::candidates`] nearest within [`LoopParams::search_radius_m`]. Drift
-//!    beyond that radius goes unnoticed.
+//!    them): by position, the [`LoopParams::candidates`] nearest within
+//!    [`LoopParams::search_radius_m`] looking the same way (within the local map's
+//!    `nearby_angle_deg`); by appearance, wherever they are, the
+//!    [`LoopParams::appearance_candidates`] whose bags of words score highest against the
+//!    new keyframe's ([`stride_frontend::place`], the shipped vocabulary), so that drift
+//!    beyond the radius is found too.
 //! 2. Appearance: unguided ORB matching of the keyframe's features against each candidate's
 //!    mapped features (Hamming bound, Lowe's ratio, one claim per feature); the candidate
 //!    with the most matches is verified.
@@ -33,6 +36,7 @@ use std::collections::BTreeMap;
 use stride_core::rng::{key, SplitMix64};
 use stride_frontend::features::match_descriptors;
 use stride_frontend::motion::{estimate, Correspondence, MotionParams};
+use stride_frontend::place::{PlaceDatabase, Vocabulary};
 use stride_frontend::points::Measurement;
 use stride_frontend::InlierTest;
 
@@ -55,6 +59,9 @@ pub struct LoopParams {
     pub candidates: usize,
     /// Fewest RANSAC inliers that verify a loop.
     pub min_inliers: usize,
+    /// Old keyframes compared by appearance wherever they are (the best bag-of-words
+    /// scores); 0 turns the appearance search off (the vocabulary is then not loaded).
+    pub appearance_candidates: usize,
 }
 
 impl Default for LoopParams {
@@ -66,6 +73,7 @@ impl Default for LoopParams {
             search_radius_m: 2.0,
             candidates: 5,
             min_inliers: 30,
+            appearance_candidates: 3,
         }
     }
 }
@@ -103,7 +111,49 @@ struct Verified {
     pairs: Vec<(usize, PointId)>,
 }
 
+/// The keyframes' bags of words (see [`LoopParams::appearance_candidates`]).
+pub(crate) struct Places {
+    vocabulary: Option<std::sync::Arc<Vocabulary>>,
+    database: PlaceDatabase,
+}
+
+impl Places {
+    /// Loads the shipped vocabulary when loop closure looks by appearance.
+    pub(crate) fn new(params: &LoopParams) -> Result<Self, BackendError> {
+        let vocabulary = if params.enabled && params.appearance_candidates > 0 {
+            Some(Vocabulary::shipped()?)
+        } else {
+            None
+        };
+        Ok(Self {
+            vocabulary,
+            database: PlaceDatabase::new(),
+        })
+    }
+}
+
 impl Backend {
+    /// Adds keyframe `id`'s bag of words (its described features) to the place database,
+    /// and forgets keyframes culled since; nothing when appearance search is off.
+    pub(crate) fn index_place(&mut self, id: KeyframeId) {
+        let Places {
+            vocabulary,
+            database,
+        } = &mut self.places;
+        let (Some(v), Some(kf)) = (vocabulary, self.map.keyframe(id)) else {
+            return;
+        };
+        let descriptors: Vec<[u8; 32]> = kf.features.iter().filter_map(|f| f.descriptor).collect();
+        database.add(id, v.transform(&descriptors));
+        let gone: Vec<u64> = database
+            .ids()
+            .filter(|&k| self.map.keyframe(k).is_none())
+            .collect();
+        for k in gone {
+            database.remove(k);
+        }
+    }
+
     /// Looks for a loop at keyframe `id` and closes it (see the module documentation).
     /// Returns what was done, or `None` when there was no loop to close.
     pub(crate) fn close_loop(
@@ -114,6 +164,7 @@ impl Backend {
         if !params.enabled || self.config.mode != BackendMode::BundleAdjustment {
             return Ok(None);
         }
+        self.index_place(id);
         let Some(verified) = self.find_loop(id, &params) else {
             return Ok(None);
         };
@@ -165,13 +216,22 @@ impl Backend {
             kf.covisibility.get(&k).copied().unwrap_or(0) >= params.connected_points
         };
         let old = |k: KeyframeId| k + params.min_age_keyframes <= id && !tied(k);
-        let near = self.map.nearby(
+        let mut near = self.map.nearby(
             id,
             params.search_radius_m,
             self.config.nearby_angle_deg,
             params.candidates,
             |k| old(k.id),
         );
+        if let Some(bow) = self.places.database.get(id) {
+            let alike = self
+                .places
+                .database
+                .query(bow, params.appearance_candidates, |k| {
+                    old(k) && !near.contains(&k) && self.map.keyframe(k).is_some()
+                });
+            near.extend(alike.iter().map(|m| m.id));
+        }
         // The keyframe's features that can be matched: descriptor and measurement.
         let query: Vec<(usize, [u8; 32], Measurement)> = kf
             .features
