@@ -113,6 +113,12 @@ pub struct VoConfig {
     /// Fewest RANSAC inliers among the matches for a recovered pose to be accepted (it must
     /// also have more inliers than Lucas-Kanade's estimate).
     pub recovery_min_inliers: usize,
+    /// Relocalization ([`crate::relocalize`]): a frame that tracking and recovery lost is
+    /// looked up by appearance among this run's keyframes (one per 0.15 m or 15 degrees, at
+    /// most this many, about 35 KB each) and a saved map's. `None` disables it within a run
+    /// (a saved map is still searched for the first frame).
+    #[serde(with = "stride_core::serde_opt")]
+    pub relocalization_keyframes: Option<usize>,
     /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
     /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
@@ -334,6 +340,14 @@ impl VoConfig {
                 "1 to 20 (or false: no recovery)",
             )?;
         }
+        if let Some(k) = c.relocalization_keyframes {
+            check(
+                "relocalization_keyframes",
+                k,
+                (1..=100_000).contains(&k),
+                "1 to 100000 (or false: no relocalization within a run)",
+            )?;
+        }
         check(
             "recovery_min_inliers",
             c.recovery_min_inliers,
@@ -393,6 +407,7 @@ impl Default for VoConfig {
             orb_descriptors: true,
             recovery_keyframes: Some(5),
             recovery_min_inliers: 20,
+            relocalization_keyframes: Some(2000),
             rolling_shutter_s: 0.0,
             seed: 1,
         }

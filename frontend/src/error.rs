@@ -48,4 +48,7 @@ pub enum FrontendError {
         /// Inliers needed (`recovery_min_inliers`).
         min_inliers: usize,
     },
+    /// The place-recognition vocabulary could not be read.
+    #[error("place recognition: {0}")]
+    Place(#[from] crate::place::PlaceError),
 }

@@ -139,7 +139,10 @@ impl VisualOdometry {
                 measurement: m,
                 descriptor: d,
             })
-            .collect();
+            .collect::<Vec<_>>();
+        if let Some(cap) = self.config.relocalization_keyframes {
+            self.places.remember(id, *world_from_cur, &features, cap);
+        }
         self.kf_tracks = tracks.len();
         self.tracks = tracks;
         Ok(KeyframeInfo {

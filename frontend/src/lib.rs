@@ -7,8 +7,9 @@
 //! ([`points`], paper 000 eqs. 10-12), and the camera motion from Umeyama + RANSAC refined
 //! with the covariance-weighted 3-D error ([`motion`]). [`VisualOdometry`] ties them together;
 //! [`recovery`] finds frames that tracking loses by matching ORB features against recent
-//! keyframes, and places a run's first frame in a saved map
-//! ([`VisualOdometry::start_in_map`]).
+//! keyframes; [`relocalize`] finds those that recovery cannot among every keyframe the run
+//! may come back to, by appearance ([`place`]), and places a run's first frame in a saved
+//! map ([`VisualOdometry::start_in_map`]).
 //!
 //! Deterministic: RANSAC is seeded, OpenCV's tracking and detection do not depend on thread
 //! scheduling, and nothing else is random.
@@ -22,6 +23,7 @@ pub mod motion;
 pub mod place;
 pub mod points;
 pub mod recovery;
+pub mod relocalize;
 pub mod result;
 pub mod vo;
 

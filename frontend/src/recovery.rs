@@ -12,9 +12,8 @@
 //! matched points, placed in the world by that keyframe, become the new keyframe's tracks:
 //! tracking resumes on old points instead of starting afresh at a predicted pose.
 //!
-//! Relocalization in a saved map works the same way against the map's keyframes
-//! ([`Anchor`]): the frame's features are matched against every keyframe's, and RANSAC runs
-//! on the few with the most matches. A run that starts in a saved map begins with it.
+//! When the recent keyframes cannot place the frame either, [`crate::relocalize`] looks it
+//! up among all the keyframes the run may come back to, by appearance.
 
 use crate::error::FrontendError;
 use crate::features::{match_descriptors, OrbDescriptor};
@@ -32,7 +31,7 @@ use std::collections::VecDeque;
 use std::rc::Rc;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
-use stride_core::image::{DepthImage, GrayImage};
+use stride_core::image::DepthImage;
 use stride_core::rng::SplitMix64;
 
 /// Largest Hamming distance (of 256 bits) of an accepted match: ORB-SLAM's stricter bound.
@@ -45,13 +44,13 @@ const ORB_FEATURES: i32 = 1000;
 /// that recovery most often faces.
 const ORB_FAST_THRESHOLD: i32 = 12;
 /// Kept keyframes are at least this far apart (m) ...
-const SPACING_M: f64 = 0.15;
+pub(crate) const SPACING_M: f64 = 0.15;
 /// ... or this rotation apart (rad, 15 degrees), except the newest: a handful of them then
 /// covers the last metre or so of the path, not the last few frames.
-const SPACING_RAD: f64 = 0.26;
+pub(crate) const SPACING_RAD: f64 = 0.26;
 /// RANSAC iterations for the matches: their inlier ratio can be a quarter, where 300 (the
 /// tracking default) finds a clean sample only about half of the time.
-const RANSAC_ITERATIONS: usize = 2000;
+pub(crate) const RANSAC_ITERATIONS: usize = 2000;
 
 /// Keyframes of a saved map tried with RANSAC when relocalizing in it: those with the most
 /// descriptor matches.
@@ -82,9 +81,9 @@ pub struct Anchor {
 
 /// An anchor keyframe with its features as the matcher takes them.
 pub(crate) struct AnchorKeyframe {
-    id: u64,
-    world_from_camera: Isometry3<f64>,
-    points: Vec<OrbPoint>,
+    pub(crate) id: u64,
+    pub(crate) world_from_camera: Isometry3<f64>,
+    pub(crate) points: Vec<OrbPoint>,
 }
 
 impl From<Anchor> for AnchorKeyframe {
@@ -108,10 +107,10 @@ impl From<Anchor> for AnchorKeyframe {
 /// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
 /// camera's frame (m, covariance m^2).
 #[derive(Debug, Clone, Copy)]
-struct OrbPoint {
-    px: Point2f,
-    descriptor: OrbDescriptor,
-    p_camera: Measurement,
+pub(crate) struct OrbPoint {
+    pub(crate) px: Point2f,
+    pub(crate) descriptor: OrbDescriptor,
+    pub(crate) p_camera: Measurement,
 }
 
 /// A recent keyframe as recovery needs it.
@@ -126,7 +125,7 @@ struct RecentKeyframe {
 /// The most recent keyframes (oldest first) and the ORB extractor recovery uses.
 pub(crate) struct RecentKeyframes {
     keyframes: VecDeque<RecentKeyframe>,
-    orb: Ptr<ORB>,
+    pub(crate) orb: Ptr<ORB>,
 }
 
 impl RecentKeyframes {
@@ -182,7 +181,7 @@ impl RecentKeyframes {
 }
 
 /// ORB points of a grey image with depth.
-fn orb_points(
+pub(crate) fn orb_points(
     orb: &mut Ptr<ORB>,
     gray: &Mat,
     depth_m: &DepthImage,
@@ -217,7 +216,7 @@ fn orb_points(
 
 /// Accepted matches `(query, reference)` between two sets of ORB points
 /// ([`match_descriptors`] with [`MAX_HAMMING`] and [`RATIO`]).
-fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
+pub(crate) fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
     let descriptors = |p: &[OrbPoint]| p.iter().map(|o| o.descriptor).collect::<Vec<_>>();
     match_descriptors(
         &descriptors(query),
@@ -245,7 +244,7 @@ pub(crate) struct Recovered {
 /// The pose of a frame against one reference keyframe: the matches of `query` with the
 /// keyframe's `points` (placed in the world by `world_from_kf`), RANSAC, polish. Returns the
 /// estimate and the correspondences with their query indices.
-fn estimate_against(
+pub(crate) fn estimate_against(
     query: &[OrbPoint],
     points: &[OrbPoint],
     world_from_kf: &Isometry3<f64>,
@@ -283,7 +282,7 @@ fn estimate_against(
 }
 
 /// Keeps the estimate with more inliers (the earlier one on a tie).
-fn keep_best(
+pub(crate) fn keep_best(
     best: &mut Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
     candidate: Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
 ) {
@@ -347,82 +346,9 @@ impl VisualOdometry {
         Ok(best.map(|(e, pairs)| self.recovered(&query, e, &pairs)))
     }
 
-    /// Looks for the current frame's pose in a saved map: its ORB features are matched
-    /// against every anchor keyframe's, and RANSAC runs on the
-    /// [`RELOCALIZATION_CANDIDATES`] keyframes with the most matches.
-    /// [`FrontendError::NotLocalized`], saying what was found, when no keyframe gives
-    /// `recovery_min_inliers` inliers.
-    pub(crate) fn relocalize(
-        &mut self,
-        frame: &RgbdFrame,
-        pyr: &Pyramid,
-        gray_img: &GrayImage,
-    ) -> Result<Recovered, FrontendError> {
-        let (camera, config) = (&self.camera, &self.config);
-        let still = ShutterMotion::default();
-        let mut query = orb_points(
-            &mut self.recent.orb,
-            &pyr.gray,
-            &frame.depth_m,
-            camera,
-            &still,
-            config,
-        )?;
-        // The map's features are the tracking's corners with ORB descriptors at full
-        // resolution: the same corners of this frame match them best.
-        let corners = self.detector.detect(&pyr.gray, &[], config)?;
-        let pts: Vec<Point2f> = corners.iter().map(|c| c.px).collect();
-        let descriptors = self.detector.describe(&pyr.gray, gray_img, &pts)?;
-        for (px, d) in pts.iter().zip(descriptors) {
-            let m = measure(&frame.depth_m, camera, (px.x, px.y), &still, config);
-            if let (Some(descriptor), Some(p_camera)) = (d, m) {
-                query.push(OrbPoint {
-                    px: *px,
-                    descriptor,
-                    p_camera,
-                });
-            }
-        }
-        let params = MotionParams {
-            max_iterations: RANSAC_ITERATIONS,
-            min_inliers: config.recovery_min_inliers,
-            ..MotionParams::from_config(config)
-        };
-        let mut ranked: Vec<(usize, &AnchorKeyframe)> = self
-            .anchors
-            .iter()
-            .map(|a| (match_points(&query, &a.points).len(), a))
-            .collect();
-        ranked.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
-        let most_matches = ranked.first().map_or(0, |r| r.0);
-        let mut best = None;
-        for (_, a) in ranked.iter().take(RELOCALIZATION_CANDIDATES) {
-            let found = estimate_against(
-                &query,
-                &a.points,
-                &a.world_from_camera,
-                &params,
-                config.refine_iterations,
-                &mut self.rng,
-            );
-            keep_best(&mut best, found);
-        }
-        match best {
-            Some((e, pairs)) => Ok(self.recovered(&query, e, &pairs)),
-            None => Err(FrontendError::NotLocalized {
-                index: frame.index,
-                t_s: frame.t_s,
-                keyframes: self.anchors.len(),
-                features: query.len(),
-                most_matches,
-                min_inliers: self.config.recovery_min_inliers,
-            }),
-        }
-    }
-
     /// The pose and the new tracks (the inliers, carrying their matched world points) of
     /// an estimate from [`estimate_against`].
-    fn recovered(
+    pub(crate) fn recovered(
         &mut self,
         query: &[OrbPoint],
         e: MotionEstimate,

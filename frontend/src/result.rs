@@ -15,8 +15,8 @@ pub enum TrackingStatus {
     /// Lucas-Kanade could not follow (or kept too few inliers); the pose was found by
     /// matching ORB features against recent keyframes ([`crate::recovery`]).
     Recovered,
-    /// The first frame of a run in a saved map: found by matching ORB features against
-    /// the map's keyframes ([`crate::recovery`]).
+    /// Found among the keyframes the run may come back to ([`crate::relocalize`]): the
+    /// first frame of a run in a saved map, or a frame that tracking and recovery lost.
     Relocalized,
     /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
     Lost,

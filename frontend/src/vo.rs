@@ -32,7 +32,8 @@ use crate::motion::{
     is_finite, is_inlier, polish, ransac, Correspondence, MotionEstimate, MotionParams,
 };
 use crate::points::{measure, Measurement, ShutterMotion};
-use crate::recovery::{Anchor, AnchorKeyframe, RecentKeyframes};
+use crate::recovery::{Anchor, RecentKeyframes};
+use crate::relocalize::PlaceMemory;
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
 use opencv::core::Point2f;
@@ -79,9 +80,9 @@ pub struct VisualOdometry {
     pub(crate) recent: RecentKeyframes,
     /// The camera's motion during this frame's readout (rolling shutter).
     pub(crate) shutter: ShutterMotion,
-    /// Keyframes of a saved map the first frame is localized in (empty: the first frame
-    /// defines the world).
-    pub(crate) anchors: Vec<AnchorKeyframe>,
+    /// The keyframes relocalization searches: a saved map's (the first frame is localized
+    /// in them) and this run's.
+    pub(crate) places: PlaceMemory,
 }
 
 /// Scales a motion by `ratio` (translation linearly, rotation along its axis).
@@ -115,7 +116,7 @@ impl VisualOdometry {
             next_id: 0,
             recent: RecentKeyframes::new()?,
             shutter: ShutterMotion::default(),
-            anchors: Vec::new(),
+            places: PlaceMemory::new()?,
         })
     }
 
@@ -124,7 +125,7 @@ impl VisualOdometry {
     /// keyframes are numbered from `first_keyframe_id` on, after the map's. Call before the
     /// first frame. An empty `anchors` leaves the first frame defining the world.
     pub fn start_in_map(&mut self, anchors: Vec<Anchor>, first_keyframe_id: u64) {
-        self.anchors = anchors.into_iter().map(AnchorKeyframe::from).collect();
+        self.places.add_saved_map(anchors);
         if self.kf_count == self.kf_first {
             self.kf_count = first_keyframe_id;
             self.kf_first = first_keyframe_id;
@@ -176,7 +177,7 @@ impl VisualOdometry {
         let (mut inliers, mut iterations, mut correspondences) = (0, 0, 0);
         let mut information = Matrix6::zeros();
         let mut measured = Vec::new();
-        if !self.anchors.is_empty() {
+        if self.places.saved_map {
             let t = Instant::now();
             let r = self.relocalize(frame, pyr, gray_img)?;
             timing.recover_s = t.elapsed().as_secs_f64();
@@ -320,11 +321,13 @@ impl VisualOdometry {
         let mut correspondences = corrs.len();
         if status == TrackingStatus::Lost || inliers < cfg.keyframe_min_inliers {
             let t_w = Instant::now();
-            // A weak estimate is replaced only by one with clearly more support.
-            if let Some(r) = self.recover(frame, &pyr, 2 * inliers)? {
+            let lost = status == TrackingStatus::Lost;
+            if let Some((r, how)) =
+                self.search_by_appearance(frame, &pyr, &gray_img, lost, inliers)?
+            {
                 world_from_cur = r.world_from_cur;
                 (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
-                status = TrackingStatus::Recovered;
+                status = how;
                 recovered_tracks = Some(r.tracks);
                 correspondences = r.matches;
             }
@@ -355,7 +358,7 @@ impl VisualOdometry {
         if let Some(tracks) = recovered_tracks {
             alive = tracks;
         }
-        let estimated = matches!(status, TrackingStatus::Tracked | TrackingStatus::Recovered);
+        let estimated = status != TrackingStatus::Lost;
 
         // 4. Keyframe?
         let kf_from_cur = self.world_from_kf.inverse() * world_from_cur;

@@ -169,7 +169,7 @@ impl Slam {
         }
         if r.status == TrackingStatus::Relocalized {
             tracing::info!(
-                "frame {} ({:.6} s): relocalized in the saved map ({} inliers of {} matches)",
+                "frame {} ({:.6} s): relocalized by appearance among the remembered keyframes ({} inliers of {} matches)",
                 r.index,
                 r.t_s,
                 r.inliers,

@@ -215,3 +215,45 @@ pub fn data_lines(p: &Path) -> Vec<String> {
         .map(str::to_owned)
         .collect()
 }
+
+/// A TUM folder in `dst` that plays `src`'s colour frames in `order` (0-based indices,
+/// comments excluded) at 15 Hz with fresh timestamps: each frame's depth image is the one
+/// nearest it in time, and the ground truth the pose nearest it, both written at the new
+/// time. Paths are absolute: nothing is copied. A jump in `order` is a camera carried
+/// elsewhere between two frames (the kidnapped robot).
+pub fn reordered(src: &Path, dst: &Path, order: &[usize]) {
+    let parse = |name: &str| -> Vec<(f64, String)> {
+        data_lines(&src.join(name))
+            .iter()
+            .map(|l| {
+                let (t, rest) = l.split_once(' ').unwrap();
+                (t.parse().unwrap(), rest.to_owned())
+            })
+            .collect()
+    };
+    let (rgb, depth, gt) = (
+        parse("rgb.txt"),
+        parse("depth.txt"),
+        parse("groundtruth.txt"),
+    );
+    let nearest = |list: &[(f64, String)], t: f64| {
+        list.iter()
+            .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
+            .unwrap()
+            .1
+            .clone()
+    };
+    let t0 = rgb[0].0;
+    let (mut r, mut d, mut g) = (String::new(), String::new(), String::new());
+    for (k, &i) in order.iter().enumerate() {
+        let (t, file) = &rgb[i];
+        let tn = t0 + k as f64 / 15.0;
+        r += &format!("{tn:.6} {}\n", src.join(file).display());
+        d += &format!("{tn:.6} {}\n", src.join(nearest(&depth, *t)).display());
+        g += &format!("{tn:.6} {}\n", nearest(&gt, *t));
+    }
+    std::fs::create_dir_all(dst).unwrap();
+    for (name, text) in [("rgb.txt", r), ("depth.txt", d), ("groundtruth.txt", g)] {
+        std::fs::write(dst.join(name), text).unwrap();
+    }
+}

@@ -1,0 +1,296 @@
+//! Relocalization by appearance: a frame that neither Lucas-Kanade nor the recent keyframes
+//! ([`crate::recovery`]) can place is looked up among every keyframe the run may come back
+//! to, and tracking resumes in the same map instead of at a guessed pose.
+//!
+//! The [`PlaceMemory`] holds a saved map's keyframes ([`VisualOdometry::start_in_map`]) and
+//! this run's own: one keyframe whenever the camera has moved [`SPACING_M`] or turned
+//! [`SPACING_RAD`] since the last one kept, at most `relocalization_keyframes` of them (the
+//! oldest forgotten first; about 35 KB each: their described corners with depth). Each has
+//! a bag of words ([`crate::place`], the shipped vocabulary). A query frame's ORB features
+//! (multi-scale, plus its tracking corners described as the keyframes' are) give its own
+//! bag; the [`SHORTLIST`] keyframes with the best scores are matched by descriptor, and
+//! RANSAC runs on the [`RELOCALIZATION_CANDIDATES`] with the most matches, exactly as for
+//! recovery. A saved map small enough to fit the shortlist is thus searched exhaustively.
+//!
+//! The run's own keyframes are placed by the odometry's poses: a relocalized frame is put
+//! where the odometry had put that place, so the jump it makes is consistent with the
+//! trajectory up to the drift accumulated since, which the back end's loop closure then
+//! corrects.
+
+use crate::error::FrontendError;
+use crate::features::OrbDescriptor;
+use crate::klt::Pyramid;
+use crate::motion::MotionParams;
+use crate::points::{measure, ShutterMotion};
+use crate::recovery::{
+    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
+    Recovered, RANSAC_ITERATIONS, RELOCALIZATION_CANDIDATES, SPACING_M, SPACING_RAD,
+};
+use crate::result::{KeyframeFeature, TrackingStatus};
+use crate::vo::VisualOdometry;
+use nalgebra::Isometry3;
+use opencv::core::Point2f;
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
+use stride_core::frame::RgbdFrame;
+use stride_core::image::GrayImage;
+
+use crate::place::{PlaceDatabase, Vocabulary};
+
+/// Keyframes with the best bag-of-words scores that are matched by descriptor.
+pub const SHORTLIST: usize = 20;
+
+/// The keyframes relocalization searches (see the module documentation).
+pub(crate) struct PlaceMemory {
+    vocabulary: Arc<Vocabulary>,
+    database: PlaceDatabase,
+    keyframes: BTreeMap<u64, AnchorKeyframe>,
+    /// This run's keyframes kept, oldest first.
+    own: VecDeque<u64>,
+    /// The pose of the last one.
+    last_own: Option<Isometry3<f64>>,
+    /// A saved map's keyframes were added: the first frame must be relocalized in them.
+    pub(crate) saved_map: bool,
+}
+
+impl PlaceMemory {
+    /// Empty, with the shipped vocabulary.
+    pub(crate) fn new() -> Result<Self, FrontendError> {
+        Ok(Self {
+            vocabulary: Vocabulary::shipped()?,
+            database: PlaceDatabase::new(),
+            keyframes: BTreeMap::new(),
+            own: VecDeque::new(),
+            last_own: None,
+            saved_map: false,
+        })
+    }
+
+    /// Keyframes held.
+    pub(crate) fn len(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    fn insert(&mut self, kf: AnchorKeyframe) {
+        let descriptors: Vec<OrbDescriptor> = kf.points.iter().map(|p| p.descriptor).collect();
+        self.database
+            .add(kf.id, self.vocabulary.transform(&descriptors));
+        self.keyframes.insert(kf.id, kf);
+    }
+
+    /// Adds a saved map's keyframes.
+    pub(crate) fn add_saved_map(&mut self, anchors: Vec<Anchor>) {
+        self.saved_map |= !anchors.is_empty();
+        for a in anchors {
+            self.insert(AnchorKeyframe::from(a));
+        }
+    }
+
+    /// Remembers one of this run's keyframes (its described features with depth) when it
+    /// is far enough from the last one kept, forgetting the oldest beyond `cap`.
+    pub(crate) fn remember(
+        &mut self,
+        id: u64,
+        world_from_kf: Isometry3<f64>,
+        features: &[KeyframeFeature],
+        cap: usize,
+    ) {
+        if let Some(last) = self.last_own {
+            let step = last.inverse() * world_from_kf;
+            if step.translation.vector.norm() < SPACING_M && step.rotation.angle() < SPACING_RAD {
+                return;
+            }
+        }
+        let points = features
+            .iter()
+            .filter_map(|f| {
+                Some(OrbPoint {
+                    px: Point2f::new(f.px.x, f.px.y),
+                    descriptor: f.descriptor?,
+                    p_camera: f.measurement?,
+                })
+            })
+            .collect();
+        self.insert(AnchorKeyframe {
+            id,
+            world_from_camera: world_from_kf,
+            points,
+        });
+        self.own.push_back(id);
+        self.last_own = Some(world_from_kf);
+        while self.own.len() > cap {
+            if let Some(old) = self.own.pop_front() {
+                self.keyframes.remove(&old);
+                self.database.remove(old);
+            }
+        }
+    }
+
+    /// The keyframes to try for `query`, most descriptor matches first (ties by identifier),
+    /// with their match counts: the [`SHORTLIST`] best by bag of words, then the
+    /// [`RELOCALIZATION_CANDIDATES`] best of those by matches.
+    fn candidates(&self, query: &[OrbPoint]) -> Vec<(usize, &AnchorKeyframe)> {
+        let descriptors: Vec<OrbDescriptor> = query.iter().map(|p| p.descriptor).collect();
+        let bow = self.vocabulary.transform(&descriptors);
+        let mut ranked: Vec<(usize, &AnchorKeyframe)> = self
+            .database
+            .query(&bow, SHORTLIST, |_| true)
+            .iter()
+            .filter_map(|m| self.keyframes.get(&m.id))
+            .map(|kf| (match_points(query, &kf.points).len(), kf))
+            .collect();
+        ranked.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
+        ranked.truncate(RELOCALIZATION_CANDIDATES);
+        ranked
+    }
+}
+
+impl VisualOdometry {
+    /// Looks for the pose of a frame that tracking lost (`lost`) or kept with only
+    /// `inliers` inliers: recovery against the recent keyframes (a weak estimate is replaced
+    /// only by one with twice its inliers), then, for a lost frame, relocalization among
+    /// the remembered keyframes. `None` when neither finds it.
+    pub(crate) fn search_by_appearance(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &Pyramid,
+        gray_img: &GrayImage,
+        lost: bool,
+        inliers: usize,
+    ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
+        if let Some(r) = self.recover(frame, pyr, 2 * inliers)? {
+            return Ok(Some((r, TrackingStatus::Recovered)));
+        }
+        if !lost || self.config.relocalization_keyframes.is_none() || self.places.len() == 0 {
+            return Ok(None);
+        }
+        match self.relocalize(frame, pyr, gray_img) {
+            Ok(r) => Ok(Some((r, TrackingStatus::Relocalized))),
+            Err(FrontendError::NotLocalized { most_matches, .. }) => {
+                tracing::debug!(
+                    "frame {}: not relocalized ({most_matches} matches at most)",
+                    frame.index
+                );
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Looks for the current frame's pose among the remembered keyframes (see the module
+    /// documentation). [`FrontendError::NotLocalized`], saying what was found, when no
+    /// candidate gives `recovery_min_inliers` inliers.
+    pub(crate) fn relocalize(
+        &mut self,
+        frame: &RgbdFrame,
+        pyr: &Pyramid,
+        gray_img: &GrayImage,
+    ) -> Result<Recovered, FrontendError> {
+        let (camera, config) = (&self.camera, &self.config);
+        let still = ShutterMotion::default();
+        let mut query = orb_points(
+            &mut self.recent.orb,
+            &pyr.gray,
+            &frame.depth_m,
+            camera,
+            &still,
+            config,
+        )?;
+        // The keyframes' features are the tracking's corners with ORB descriptors at full
+        // resolution: the same corners of this frame match them best.
+        let corners = self.detector.detect(&pyr.gray, &[], config)?;
+        let pts: Vec<Point2f> = corners.iter().map(|c| c.px).collect();
+        let descriptors = self.detector.describe(&pyr.gray, gray_img, &pts)?;
+        for (px, d) in pts.iter().zip(descriptors) {
+            let m = measure(&frame.depth_m, camera, (px.x, px.y), &still, config);
+            if let (Some(descriptor), Some(p_camera)) = (d, m) {
+                query.push(OrbPoint {
+                    px: *px,
+                    descriptor,
+                    p_camera,
+                });
+            }
+        }
+        let params = MotionParams {
+            max_iterations: RANSAC_ITERATIONS,
+            min_inliers: config.recovery_min_inliers,
+            ..MotionParams::from_config(config)
+        };
+        let mut best = None;
+        let most_matches = {
+            let ranked = self.places.candidates(&query);
+            for (_, a) in &ranked {
+                let found = estimate_against(
+                    &query,
+                    &a.points,
+                    &a.world_from_camera,
+                    &params,
+                    config.refine_iterations,
+                    &mut self.rng,
+                );
+                keep_best(&mut best, found);
+            }
+            ranked.first().map_or(0, |r| r.0)
+        };
+        match best {
+            Some((e, pairs)) => Ok(self.recovered(&query, e, &pairs)),
+            None => Err(FrontendError::NotLocalized {
+                index: frame.index,
+                t_s: frame.t_s,
+                keyframes: self.places.len(),
+                features: query.len(),
+                most_matches,
+                min_inliers: self.config.recovery_min_inliers,
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+    use crate::points::Measurement;
+    use nalgebra::{Matrix3, Point2, Point3};
+
+    fn features(seed: u8) -> Vec<KeyframeFeature> {
+        (0..50u8)
+            .map(|i| KeyframeFeature {
+                track_id: u64::from(i),
+                px: Point2::new(f32::from(i), 0.0),
+                measurement: Some(Measurement {
+                    p: Point3::new(0.0, 0.0, 1.0),
+                    cov: Matrix3::identity() * 1e-6,
+                }),
+                descriptor: Some([i.wrapping_mul(seed); 32]),
+            })
+            .collect()
+    }
+
+    fn at(x: f64) -> Isometry3<f64> {
+        Isometry3::translation(x, 0.0, 0.0)
+    }
+
+    #[test]
+    fn keyframes_are_remembered_apart_and_the_oldest_forgotten_beyond_the_cap() {
+        let mut m = PlaceMemory::new().unwrap();
+        // 0.06 m apart: one kept per 0.15 m (every third, 0.18 m apart).
+        for k in 0..10u64 {
+            m.remember(k, at(0.06 * k as f64), &features(3), 100);
+        }
+        let kept: Vec<u64> = m.keyframes.keys().copied().collect();
+        assert_eq!(kept, vec![0, 3, 6, 9]);
+        // A cap of 2 forgets the oldest, in the database too.
+        m.remember(10, at(1.0), &features(5), 2);
+        assert_eq!(m.keyframes.keys().copied().collect::<Vec<_>>(), vec![9, 10]);
+        assert_eq!(m.database.len(), 2);
+        assert!(!m.saved_map);
+        // A feature without depth or descriptor is not kept.
+        let mut partial = features(7);
+        partial[0].measurement = None;
+        partial[1].descriptor = None;
+        m.remember(11, at(2.0), &partial, 10);
+        assert_eq!(m.keyframes[&11].points.len(), 48);
+    }
+}
