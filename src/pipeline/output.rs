@@ -15,8 +15,8 @@ pub enum FrameStatus {
     /// Lucas-Kanade could not follow it; found by matching ORB features against recent
     /// keyframes (the odometry's wide-baseline recovery).
     Recovered,
-    /// The first frame of a run in a saved map: placed in it by matching ORB features
-    /// against the map's keyframes.
+    /// Found by appearance among the keyframes the run may come back to: the first frame
+    /// of a run in a saved map, or a frame that tracking and recovery lost.
     Relocalized,
     /// The odometry could not estimate it: predicted by constant velocity.
     Lost,
