@@ -42,6 +42,9 @@ pub struct MapperRun {
     pub floor: Option<FloorFit>,
     /// Bytes the mapper held at the end ([`ElevationMapper::memory_bytes`]).
     pub memory_bytes: usize,
+    /// Mapped columns dropped at the archive's cap
+    /// ([`ElevationMapper::archive_dropped_cells`]).
+    pub archive_dropped_cells: usize,
 }
 
 /// Ground truth spanning more than this height (m) within [`STEP_RADIUS_M`] of a cell puts
@@ -137,6 +140,7 @@ pub fn map_sequence(
             seen: None,
             floor,
             memory_bytes: m.memory_bytes(),
+            archive_dropped_cells: m.archive_dropped_cells(),
         });
     }
     // With the cells seen among the maps, every map is also scored over them.

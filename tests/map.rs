@@ -228,3 +228,26 @@ fn bad_pose_files_fail_cleanly_and_frames_outside_the_poses_are_counted() {
     );
     assert_eq!(std::fs::read(half_dir.join("report.json")).unwrap(), before);
 }
+
+#[test]
+fn columns_dropped_at_the_archive_cap_are_reported() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synthetic(&seq);
+    // A window of 0.5 m that follows every 2 cm of the walk leaves columns behind all the
+    // time, and an archive of one column must drop them.
+    let cfg = tmp.path().join("small.toml");
+    std::fs::write(
+        &cfg,
+        "[map.stack]\nsize_m = 0.5\nrecenter_threshold_m = 0.02\narchive_max_cells = 1\n",
+    )
+    .unwrap();
+    let capped = map(
+        &seq,
+        &tmp.path().join("capped"),
+        &["--config", cfg.to_str().unwrap()],
+    );
+    assert!(num(&capped, "archive_dropped_cells") > 0.0, "{capped}");
+    let full = map(&seq, &tmp.path().join("full"), &[]);
+    assert_eq!(full["archive_dropped_cells"], 0, "{full}");
+}

@@ -91,6 +91,12 @@ pub trait ElevationMapper {
     /// Bytes the map holds (cells, voxel stacks, archive and per-frame buffers; hash-map
     /// overhead not counted), for memory comparisons with other map representations.
     fn memory_bytes(&self) -> usize;
+    /// Columns dropped so far from the archive of cells the moving window left behind, to
+    /// keep the archive within its cap: mapped cells the exported map no longer holds (0
+    /// for mappers that keep every cell).
+    fn archive_dropped_cells(&self) -> usize {
+        0
+    }
     /// The map as its method delivers it: [`Self::export`] followed by the mapper's own
     /// post-processing (the stack mapper's median filter, paper 000), with what it changed.
     /// Mappers without post-processing return `export()` unchanged.

@@ -435,6 +435,10 @@ impl ElevationMapper for StackMapper {
         "stack"
     }
 
+    fn archive_dropped_cells(&self) -> usize {
+        self.archive.dropped()
+    }
+
     fn memory_bytes(&self) -> usize {
         self.window.memory_bytes()
             + self.stacks.capacity() * std::mem::size_of::<Stack>()

@@ -259,6 +259,10 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
     );
     m.insert("cells_cleared_by_visibility".into(), json!(r.cells_cleared));
     m.insert(
+        "archive_dropped_cells".into(),
+        json!(r.archive_dropped_cells),
+    );
+    m.insert(
         "median_filter".into(),
         serde_json::to_value(r.median).unwrap_or(Value::Null),
     );
@@ -397,6 +401,13 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
             out.to_path_buf()
         };
         write_layers(&dir, &r.layers)?;
+        if r.archive_dropped_cells > 0 {
+            tracing::warn!(
+                "{}: {} mapped columns dropped from the archive at its cap (map.stack.archive_max_cells); the exported map lacks them",
+                r.name,
+                r.archive_dropped_cells
+            );
+        }
         let j = run_json(r, &counts);
         let f = |k: &str| {
             j.get(k)
