@@ -35,6 +35,13 @@ fn recovery_finds_frames_that_tracking_loses() {
     // recovered, 9.9 mm.
     assert!(without["frames_lost"].as_u64().unwrap() >= 1, "{without}");
     assert_eq!(with["frames_lost"], 0, "{with}");
+    // Each lost frame starts a piece placed by a guess; no loop joins them here.
+    assert_eq!(with["segments"], 1, "{with}");
+    assert_eq!(
+        without["segments"].as_u64().unwrap(),
+        1 + without["frames_lost"].as_u64().unwrap(),
+        "{without}"
+    );
     assert!(with["frames_recovered"].as_u64().unwrap() >= 1, "{with}");
     let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
     assert!(ate_with < 0.02, "ATE with recovery {ate_with} m");
@@ -74,6 +81,7 @@ fn a_camera_carried_back_to_the_start_is_relocalized_in_its_own_map() {
     assert_eq!(with["frames_relocalized"], 1, "{with}");
     assert_eq!(with["frames_lost"], 0, "{with}");
     assert_eq!(without["frames_lost"], 1, "{without}");
+    assert_eq!(with["segments"], 1, "{with}");
     let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
     assert!(ate_with < 0.015, "ATE with relocalization {ate_with} m");
     assert!(

@@ -278,6 +278,12 @@ pub fn run(a: RunArgs) -> Result<()> {
         "{} frames, {} tracked, {} recovered, {} relocalized, {} lost, {} skipped; {} frames/s (back end: {}), odometry median {:.2} ms/frame (decoding excluded)",
         j["frames"], j["frames_tracked"], j["frames_recovered"], j["frames_relocalized"], j["frames_lost"], j["frames_skipped"], format_args!("{:.1}", f("fps")), j["backend"].as_str().unwrap_or("?"), j["timing_ms"]["total"]["median"].as_f64().unwrap_or(f64::NAN)
     );
+    if let Some(n) = j.get("segments").and_then(Value::as_u64).filter(|&n| n > 1) {
+        let _ = write!(
+            line,
+            "\n{n} segments: pieces of the trajectory placed relative to each other by a guess (lost frames no loop joined again)"
+        );
+    }
     // Map points and local optimizations exist only with a back end.
     if let (Some(kf), Some(_)) = (
         j.get("keyframes").and_then(Value::as_u64),

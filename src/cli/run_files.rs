@@ -399,6 +399,7 @@ fn report_json(
         "relocalizations".into(),
         json!(count(FrameStatus::Relocalized)),
     );
+    m.insert("segments".into(), json!(out.segments()));
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());

@@ -188,6 +188,7 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 vec!["keyframes in the map (final)".into(), g("map_keyframes")],
                 vec!["keyframes culled".into(), g("culled_keyframes")],
                 vec!["loops closed".into(), g("loop_closures")],
+                vec!["segments (pieces placed by a guess)".into(), g("segments")],
                 vec!["keyframe step median (ms)".into(), ms("median")],
                 vec!["keyframe step p95 (ms)".into(), ms("p95")],
                 vec![

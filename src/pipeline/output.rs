@@ -149,6 +149,44 @@ impl RunOutput {
         }
     }
 
+    /// Pieces of the run whose placement relative to one another rests only on a guess.
+    /// A lost frame (its pose predicted by constant velocity) starts a new piece; two pieces
+    /// join when the back end closes a loop between their keyframes. 1 for a run never lost.
+    /// (A piece the back end's local matching ties to an earlier one without a loop is
+    /// still counted apart.)
+    pub fn segments(&self) -> usize {
+        fn root(parent: &[usize], mut i: usize) -> usize {
+            while let Some(&p) = parent.get(i).filter(|&&p| p != i) {
+                i = p;
+            }
+            i
+        }
+        let mut parent = vec![0usize];
+        let mut segment_of_keyframe = std::collections::HashMap::new();
+        for f in &self.frames {
+            if f.status == FrameStatus::Lost {
+                parent.push(parent.len());
+            }
+            if f.keyframe {
+                segment_of_keyframe.insert(f.keyframe_id, parent.len() - 1);
+            }
+        }
+        let loops = self.backend.iter().flat_map(|b| &b.keyframes);
+        for k in loops {
+            let Some(l) = &k.loop_closure else { continue };
+            if let (Some(&a), Some(&b)) = (
+                segment_of_keyframe.get(&k.keyframe_id),
+                segment_of_keyframe.get(&l.matched),
+            ) {
+                let (ra, rb) = (root(&parent, a), root(&parent, b));
+                if let Some(p) = parent.get_mut(ra.max(rb)) {
+                    *p = ra.min(rb);
+                }
+            }
+        }
+        (0..parent.len()).filter(|&i| root(&parent, i) == i).count()
+    }
+
     /// The final `world_from_camera` of every frame (the live poses without a back end).
     ///
     /// A frame between keyframes `A` (its own) and `B` (the next) has two estimates, each
