@@ -52,10 +52,6 @@ pub(crate) const SPACING_RAD: f64 = 0.26;
 /// tracking default) finds a clean sample only about half of the time.
 pub(crate) const RANSAC_ITERATIONS: usize = 2000;
 
-/// Keyframes of a saved map tried with RANSAC when relocalizing in it: those with the most
-/// descriptor matches.
-pub const RELOCALIZATION_CANDIDATES: usize = 5;
-
 /// A feature of a saved map's keyframe that observes a map point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AnchorPoint {

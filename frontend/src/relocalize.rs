@@ -24,7 +24,7 @@ use crate::motion::MotionParams;
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
     estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
-    Recovered, RANSAC_ITERATIONS, RELOCALIZATION_CANDIDATES, SPACING_M, SPACING_RAD,
+    Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
 };
 use crate::result::{KeyframeFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
@@ -39,6 +39,8 @@ use crate::place::{PlaceDatabase, Vocabulary};
 
 /// Keyframes with the best bag-of-words scores that are matched by descriptor.
 pub const SHORTLIST: usize = 20;
+/// Keyframes of the shortlist tried with RANSAC: those with the most descriptor matches.
+pub const RELOCALIZATION_CANDIDATES: usize = 5;
 
 /// The keyframes relocalization searches (see the module documentation).
 pub(crate) struct PlaceMemory {
