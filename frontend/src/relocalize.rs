@@ -9,8 +9,9 @@
 //! a bag of words ([`crate::place`], the shipped vocabulary). A query frame's ORB features
 //! (multi-scale, plus its tracking corners described as the keyframes' are) give its own
 //! bag; the [`SHORTLIST`] keyframes with the best scores are matched by descriptor, and
-//! RANSAC runs on the [`RELOCALIZATION_CANDIDATES`] with the most matches, exactly as for
-//! recovery. A saved map small enough to fit the shortlist is thus searched exhaustively.
+//! RANSAC runs on the [`RELOCALIZATION_CANDIDATES`] with the most matches, as for recovery
+//! but with more support required ([`MIN_INLIERS`], a third of the matches). A saved map
+//! small enough to fit the shortlist is thus searched exhaustively.
 //!
 //! The run's own keyframes are placed by the odometry's poses: a relocalized frame is put
 //! where the odometry had put that place, so the jump it makes is consistent with the
@@ -41,6 +42,10 @@ use crate::place::{PlaceDatabase, Vocabulary};
 pub const SHORTLIST: usize = 20;
 /// Keyframes of the shortlist tried with RANSAC: those with the most descriptor matches.
 pub const RELOCALIZATION_CANDIDATES: usize = 5;
+/// Fewest RANSAC inliers of a relocalization (or `recovery_min_inliers` when larger), and
+/// they must be a third of the matches: a place is searched anywhere, so it needs more
+/// support than a recovery against the last keyframes (as loop closure's 30).
+pub const MIN_INLIERS: usize = 30;
 
 /// The keyframes relocalization searches (see the module documentation).
 pub(crate) struct PlaceMemory {
@@ -215,7 +220,7 @@ impl VisualOdometry {
         }
         let params = MotionParams {
             max_iterations: RANSAC_ITERATIONS,
-            min_inliers: config.recovery_min_inliers,
+            min_inliers: config.recovery_min_inliers.max(MIN_INLIERS),
             ..MotionParams::from_config(config)
         };
         let mut best = None;
@@ -230,6 +235,8 @@ impl VisualOdometry {
                     config.refine_iterations,
                     &mut self.rng,
                 );
+                // A place found anywhere must be clearly supported: a third of the matches.
+                let found = found.filter(|(e, pairs)| 3 * e.inlier_count >= pairs.len());
                 keep_best(&mut best, found);
             }
             ranked.first().map_or(0, |r| r.0)
@@ -242,7 +249,7 @@ impl VisualOdometry {
                 keyframes: self.places.len(),
                 features: query.len(),
                 most_matches,
-                min_inliers: self.config.recovery_min_inliers,
+                min_inliers: self.config.recovery_min_inliers.max(MIN_INLIERS),
             }),
         }
     }
