@@ -127,7 +127,8 @@ impl VisualOdometry {
             vec![None; tracks.len()]
         };
         if let Some(keep) = self.config.recovery_keyframes {
-            self.recent.push(pyr, &frame.depth_m, *world_from_cur, keep);
+            self.recent
+                .push(id, pyr, &frame.depth_m, *world_from_cur, keep);
         }
         let features = tracks
             .iter()

@@ -111,6 +111,8 @@ pub(crate) struct OrbPoint {
 
 /// A recent keyframe as recovery needs it.
 struct RecentKeyframe {
+    /// Its identifier.
+    id: u64,
     pyramid: Rc<Pyramid>,
     depth_m: DepthImage,
     world_from_kf: Isometry3<f64>,
@@ -144,11 +146,12 @@ impl RecentKeyframes {
         })
     }
 
-    /// Adds a keyframe (sharing its pyramid, copying its depth), forgetting the oldest
+    /// Adds keyframe `id` (sharing its pyramid, copying its depth), forgetting the oldest
     /// beyond `keep`. The previous newest is dropped if it is within the spacing
     /// ([`SPACING_M`], [`SPACING_RAD`]) of the one before it.
     pub(crate) fn push(
         &mut self,
+        id: u64,
         pyramid: &Rc<Pyramid>,
         depth_m: &DepthImage,
         world_from_kf: Isometry3<f64>,
@@ -165,6 +168,7 @@ impl RecentKeyframes {
             }
         }
         self.keyframes.push_back(RecentKeyframe {
+            id,
             pyramid: Rc::clone(pyramid),
             depth_m: depth_m.clone(),
             world_from_kf,
@@ -235,6 +239,8 @@ pub(crate) struct Recovered {
     pub(crate) tracks: Vec<(Track, Option<Measurement>)>,
     /// Matches with the keyframe the pose was found against.
     pub(crate) matches: usize,
+    /// That keyframe's identifier.
+    pub(crate) matched_keyframe: u64,
 }
 
 /// The pose of a frame against one reference keyframe: the matches of `query` with the
@@ -277,17 +283,17 @@ pub(crate) fn estimate_against(
     ))
 }
 
+/// An estimate against a keyframe: the estimate, its pairs, the keyframe's identifier.
+pub(crate) type Found = (MotionEstimate, Vec<(usize, Correspondence)>, u64);
+
 /// Keeps the estimate with more inliers (the earlier one on a tie).
-pub(crate) fn keep_best(
-    best: &mut Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
-    candidate: Option<(MotionEstimate, Vec<(usize, Correspondence)>)>,
-) {
-    if let Some((e, pairs)) = candidate {
+pub(crate) fn keep_best(best: &mut Option<Found>, candidate: Option<Found>) {
+    if let Some(c) = candidate {
         if best
             .as_ref()
-            .is_none_or(|(b, _)| e.inlier_count > b.inlier_count)
+            .is_none_or(|b| c.0.inlier_count > b.0.inlier_count)
         {
-            *best = Some((e, pairs));
+            *best = Some(c);
         }
     }
 }
@@ -337,9 +343,9 @@ impl VisualOdometry {
                 config.refine_iterations,
                 &mut self.rng,
             );
-            keep_best(&mut best, found);
+            keep_best(&mut best, found.map(|(e, p)| (e, p, kf.id)));
         }
-        Ok(best.map(|(e, pairs)| self.recovered(&query, e, &pairs)))
+        Ok(best.map(|(e, pairs, id)| self.recovered(&query, e, &pairs, id)))
     }
 
     /// The pose and the new tracks (the inliers, carrying their matched world points) of
@@ -349,6 +355,7 @@ impl VisualOdometry {
         query: &[OrbPoint],
         e: MotionEstimate,
         pairs: &[(usize, Correspondence)],
+        matched_keyframe: u64,
     ) -> Recovered {
         let keyframe = self.kf_count;
         let mut tracks = Vec::with_capacity(e.inlier_count);
@@ -378,6 +385,7 @@ impl VisualOdometry {
             information: e.information,
             tracks,
             matches: pairs.len(),
+            matched_keyframe,
         }
     }
 }

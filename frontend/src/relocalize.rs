@@ -237,12 +237,12 @@ impl VisualOdometry {
                 );
                 // A place found anywhere must be clearly supported: a third of the matches.
                 let found = found.filter(|(e, pairs)| 3 * e.inlier_count >= pairs.len());
-                keep_best(&mut best, found);
+                keep_best(&mut best, found.map(|(e, p)| (e, p, a.id)));
             }
             ranked.first().map_or(0, |r| r.0)
         };
         match best {
-            Some((e, pairs)) => Ok(self.recovered(&query, e, &pairs)),
+            Some((e, pairs, id)) => Ok(self.recovered(&query, e, &pairs, id)),
             None => Err(FrontendError::NotLocalized {
                 index: frame.index,
                 t_s: frame.t_s,

@@ -109,6 +109,9 @@ pub struct FrameResult {
     pub keyframe_from_camera: Isometry3<f64>,
     /// How the pose was obtained.
     pub status: TrackingStatus,
+    /// The keyframe a recovered or relocalized frame was matched against (this run's, or
+    /// a saved map's); `None` otherwise.
+    pub matched_keyframe: Option<u64>,
     /// Whether this frame became a keyframe.
     pub keyframe: bool,
     /// Keypoints tracked into this frame.

@@ -176,7 +176,7 @@ impl VisualOdometry {
         let (mut status, mut world_from_cur) = (TrackingStatus::Initialized, Isometry3::identity());
         let (mut inliers, mut iterations, mut correspondences) = (0, 0, 0);
         let mut information = Matrix6::zeros();
-        let mut measured = Vec::new();
+        let (mut measured, mut matched_keyframe) = (Vec::new(), None);
         if self.places.saved_map {
             let t = Instant::now();
             let r = self.relocalize(frame, pyr, gray_img)?;
@@ -184,7 +184,7 @@ impl VisualOdometry {
             status = TrackingStatus::Relocalized;
             world_from_cur = r.world_from_cur;
             (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
-            correspondences = r.matches;
+            (correspondences, matched_keyframe) = (r.matches, Some(r.matched_keyframe));
             (self.tracks, measured) = r.tracks.into_iter().unzip();
         }
         self.world_from_prev = world_from_cur;
@@ -203,6 +203,7 @@ impl VisualOdometry {
             keyframe_id: info.id,
             keyframe_from_camera: Isometry3::identity(),
             status,
+            matched_keyframe,
             keyframe: true,
             tracked,
             correspondences,
@@ -317,7 +318,7 @@ impl VisualOdometry {
             None => status = TrackingStatus::Lost,
         }
         // 3b. Wide baseline: a lost or weakly tracked frame is matched by appearance.
-        let mut recovered_tracks = None;
+        let (mut recovered_tracks, mut matched_keyframe) = (None, None);
         let mut correspondences = corrs.len();
         if status == TrackingStatus::Lost || inliers < cfg.keyframe_min_inliers {
             let t_w = Instant::now();
@@ -329,7 +330,7 @@ impl VisualOdometry {
                 (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
                 status = how;
                 recovered_tracks = Some(r.tracks);
-                correspondences = r.matches;
+                (correspondences, matched_keyframe) = (r.matches, Some(r.matched_keyframe));
             }
             timing.recover_s = t_w.elapsed().as_secs_f64();
         }
@@ -413,6 +414,7 @@ impl VisualOdometry {
             keyframe_id,
             keyframe_from_camera,
             status,
+            matched_keyframe,
             keyframe: need_kf,
             tracked: tracked_count,
             correspondences,

@@ -399,7 +399,9 @@ fn report_json(
         "relocalizations".into(),
         json!(count(FrameStatus::Relocalized)),
     );
-    m.insert("segments".into(), json!(out.segments()));
+    let segments = out.segments();
+    m.insert("segments".into(), json!(segments.len()));
+    m.insert("segment_frames".into(), json!(segments));
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());

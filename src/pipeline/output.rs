@@ -53,6 +53,8 @@ pub struct FrameRecord {
     pub keyframe_id: u64,
     /// How the pose was obtained.
     pub status: FrameStatus,
+    /// The keyframe a recovered or relocalized frame was matched against.
+    pub matched_keyframe: Option<u64>,
     /// Whether it became a keyframe.
     pub keyframe: bool,
     /// Keypoints tracked into it.
@@ -149,12 +151,14 @@ impl RunOutput {
         }
     }
 
-    /// Pieces of the run whose placement relative to one another rests only on a guess.
-    /// A lost frame (its pose predicted by constant velocity) starts a new piece; two pieces
-    /// join when the back end closes a loop between their keyframes. 1 for a run never lost.
-    /// (A piece the back end's local matching ties to an earlier one without a loop is
-    /// still counted apart.)
-    pub fn segments(&self) -> usize {
+    /// The sizes (frames) of the pieces of the run whose placement relative to one another
+    /// rests only on a guess, largest first. A lost frame (its pose predicted by constant
+    /// velocity) starts a new piece; two pieces join when a frame of the later one is
+    /// recovered or relocalized against a keyframe of the earlier one, or the back end
+    /// closes a loop between their keyframes. One piece for a run never lost. (A piece the
+    /// back end's local matching ties to an earlier one without a loop is still counted
+    /// apart.)
+    pub fn segments(&self) -> Vec<usize> {
         fn root(parent: &[usize], mut i: usize) -> usize {
             while let Some(&p) = parent.get(i).filter(|&&p| p != i) {
                 i = p;
@@ -163,28 +167,44 @@ impl RunOutput {
         }
         let mut parent = vec![0usize];
         let mut segment_of_keyframe = std::collections::HashMap::new();
+        let mut segment_of_frame = Vec::with_capacity(self.frames.len());
+        let join = |parent: &mut Vec<usize>, a: usize, b: usize| {
+            let (ra, rb) = (root(parent, a), root(parent, b));
+            if let Some(p) = parent.get_mut(ra.max(rb)) {
+                *p = ra.min(rb);
+            }
+        };
         for f in &self.frames {
             if f.status == FrameStatus::Lost {
                 parent.push(parent.len());
             }
-            if f.keyframe {
-                segment_of_keyframe.insert(f.keyframe_id, parent.len() - 1);
+            let current = parent.len() - 1;
+            if let Some(&s) = f.matched_keyframe.and_then(|k| segment_of_keyframe.get(&k)) {
+                join(&mut parent, current, s);
             }
+            if f.keyframe {
+                segment_of_keyframe.insert(f.keyframe_id, current);
+            }
+            segment_of_frame.push(current);
         }
-        let loops = self.backend.iter().flat_map(|b| &b.keyframes);
-        for k in loops {
+        for k in self.backend.iter().flat_map(|b| &b.keyframes) {
             let Some(l) = &k.loop_closure else { continue };
             if let (Some(&a), Some(&b)) = (
                 segment_of_keyframe.get(&k.keyframe_id),
                 segment_of_keyframe.get(&l.matched),
             ) {
-                let (ra, rb) = (root(&parent, a), root(&parent, b));
-                if let Some(p) = parent.get_mut(ra.max(rb)) {
-                    *p = ra.min(rb);
-                }
+                join(&mut parent, a, b);
             }
         }
-        (0..parent.len()).filter(|&i| root(&parent, i) == i).count()
+        let mut sizes = vec![0usize; parent.len()];
+        for s in segment_of_frame {
+            if let Some(n) = sizes.get_mut(root(&parent, s)) {
+                *n += 1;
+            }
+        }
+        sizes.retain(|&n| n > 0);
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        sizes
     }
 
     /// The final `world_from_camera` of every frame (the live poses without a back end).

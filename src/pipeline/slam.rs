@@ -201,6 +201,7 @@ impl Slam {
             live_world_from_camera: correction * r.world_from_camera,
             odometry_world_from_camera: r.world_from_camera,
             keyframe_id: r.keyframe_id,
+            matched_keyframe: r.matched_keyframe,
             status: match r.status {
                 TrackingStatus::Lost => FrameStatus::Lost,
                 TrackingStatus::Recovered => FrameStatus::Recovered,
@@ -239,6 +240,7 @@ impl Slam {
             odometry_world_from_camera: pose,
             keyframe_id: kf_id,
             status: FrameStatus::Skipped,
+            matched_keyframe: None,
             keyframe: false,
             tracked: 0,
             inliers: 0,
