@@ -2,10 +2,11 @@
 //! ([`crate::recovery`]) can place is looked up among every keyframe the run may come back
 //! to, and tracking resumes in the same map instead of at a guessed pose.
 //!
-//! The [`PlaceMemory`] holds a saved map's keyframes ([`VisualOdometry::start_in_map`]) and
-//! this run's own: one keyframe whenever the camera has moved [`SPACING_M`] or turned
-//! [`SPACING_RAD`] since the last one kept, at most `relocalization_keyframes` of them (the
-//! oldest forgotten first; about 35 KB each: their described corners with depth). Each has
+//! The odometry remembers a saved map's keyframes ([`VisualOdometry::start_in_map`]) and
+//! this run's own: one keyframe whenever the camera has moved 0.15 m or turned 15 degrees
+//! since the last one kept (the recent keyframes' spacing), at most
+//! `relocalization_keyframes` of them (the oldest forgotten first; about 35 KB each: their
+//! described corners with depth). Each has
 //! a bag of words ([`crate::place`], the shipped vocabulary). A query frame's ORB features
 //! (multi-scale, plus its tracking corners described as the keyframes' are) give its own
 //! bag; the [`SHORTLIST`] keyframes with the best scores are matched by descriptor, and
