@@ -187,7 +187,8 @@ impl VisualOdometry {
 
     /// Looks for the current frame's pose among the remembered keyframes (see the module
     /// documentation). [`FrontendError::NotLocalized`], saying what was found, when no
-    /// candidate gives `recovery_min_inliers` inliers.
+    /// candidate gives [`MIN_INLIERS`] (or `recovery_min_inliers`, if larger) inliers that
+    /// are a third of its matches.
     pub(crate) fn relocalize(
         &mut self,
         frame: &RgbdFrame,
