@@ -7,6 +7,21 @@
 mod common;
 
 use common::{data, derived, num, reordered};
+use std::path::Path;
+
+/// `stride run` reports on `seq` (fr3, no map) with the defaults and with the configuration
+/// `off` (TOML), written under `dir`.
+fn with_and_without(seq: &Path, dir: &Path, off: &str) -> (serde_json::Value, serde_json::Value) {
+    let config = dir.join("off.toml");
+    std::fs::write(&config, off).unwrap();
+    let config = config.display().to_string();
+    let run = |out: &str, extra: &[&str]| {
+        let mut args = vec!["--camera", "fr3", "--no-map"];
+        args.extend_from_slice(extra);
+        common::run_report("run", seq, &dir.join(out), &args)
+    };
+    (run("with", &[]), run("without", &["--config", &config]))
+}
 
 #[test]
 fn recovery_finds_frames_that_tracking_loses() {
@@ -16,20 +31,11 @@ fn recovery_finds_frames_that_tracking_loses() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("teddy_every_20th");
     derived(&teddy, &seq, |i| i % 20 == 0);
-    let off = tmp.path().join("off.toml");
-    std::fs::write(
-        &off,
+    let (with, without) = with_and_without(
+        &seq,
+        tmp.path(),
         "map = false\n[odometry]\nrecovery_keyframes = false\n",
-    )
-    .unwrap();
-    let off = off.display().to_string();
-    let run = |out: &str, extra: &[&str]| {
-        let mut args = vec!["--camera", "fr3", "--no-map"];
-        args.extend_from_slice(extra);
-        common::run_report("run", &seq, &tmp.path().join(out), &args)
-    };
-    let with = run("with", &[]);
-    let without = run("without", &["--config", &off]);
+    );
     assert_eq!(with["frames"], 10, "{with}");
     // Measured: without recovery 2 frames lost and 68 mm; with it none lost, one frame
     // recovered, 9.9 mm.
@@ -66,16 +72,11 @@ fn a_camera_carried_back_to_the_start_is_relocalized_in_its_own_map() {
     let tmp = tempfile::tempdir().unwrap();
     let seq = tmp.path().join("kidnapped");
     reordered(&teddy, &seq, &order);
-    let off = tmp.path().join("off.toml");
-    std::fs::write(&off, "[odometry]\nrelocalization_keyframes = false\n").unwrap();
-    let off = off.display().to_string();
-    let run = |out: &str, extra: &[&str]| {
-        let mut args = vec!["--camera", "fr3", "--no-map"];
-        args.extend_from_slice(extra);
-        common::run_report("run", &seq, &tmp.path().join(out), &args)
-    };
-    let with = run("with", &[]);
-    let without = run("without", &["--config", &off]);
+    let (with, without) = with_and_without(
+        &seq,
+        tmp.path(),
+        "[odometry]\nrelocalization_keyframes = false\n",
+    );
     // Measured: relocalized at the jump (65 inliers), ATE 9.5 mm; without relocalization
     // the frame is lost, tracking restarts at a guessed pose, ATE 66 mm.
     assert_eq!(with["frames_relocalized"], 1, "{with}");
