@@ -82,6 +82,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         .edge
         .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
     let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
+    let mut kept: Vec<u32> = Vec::new();
     let mut r = FlatRow::default();
     for v in s.rows.clone() {
         let Some(drow) = s.row_inputs(v, &mut rays, &mut scratch, &mut nearest) else {
@@ -146,18 +147,16 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 cens[i] = centrality(cols[i], rows[i]);
             }
         }
-        let pixels = r
-            .flags
+        // The scalar pass: the rare invalid, outside and edge pixels are classified and
+        // counted, and the indices of the kept pixels collected (a loop with few live
+        // values; the scatter below then reads the kept pixels' values by index).
+        kept.clear();
+        for (u, (&f, (&d, &near))) in r.flags[..n]
             .iter()
-            .zip(drow)
-            .zip(r.z.iter().zip(&r.var))
-            .zip(r.cell.iter().zip(&r.band).zip(&r.centrality))
-            .zip(&nearest)
-            .take(n);
-        for (u, ((((&f, &d), (&z, &var)), ((&cell, &band), &centrality)), &near)) in
-            pixels.enumerate()
+            .zip(drow.iter().zip(&nearest))
+            .enumerate()
         {
-            let kept = if f == VALID | INSIDE {
+            let keep = if f == VALID | INSIDE {
                 // The common case: valid, in the window, away from depth jumps.
                 true
             } else if f & VALID == 0 {
@@ -177,13 +176,26 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             } else {
                 true
             };
-            if !kept {
-                continue;
+            if keep {
+                kept.push(u as u32);
             }
+        }
+        for &u in &kept {
+            let u = u as usize;
+            let (Some(&band), Some(&cell), Some(&z), Some(&var)) =
+                (bands.get(u), cells.get(u), zs.get(u), vars.get(u))
+            else {
+                continue;
+            };
+            let centrality = if CENTRALITY {
+                cens.get(u).copied().unwrap_or(0.0)
+            } else {
+                0.0
+            };
             match lists.get_mut(band as usize) {
                 Some(list) => list.push(CellPoint::new(
                     cell as u32,
-                    if CENTRALITY { centrality } else { 0.0 },
+                    centrality,
                     z,
                     var.clamp(VAR_MIN_M2, VAR_MAX_M2),
                 )),
