@@ -14,11 +14,13 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 
 /// A measurement assigned to a cell of a map window: the cell's storage index, where in the
-/// cell it lies, the height (m, map frame) and its variance (m²). 12 bytes: the index
-/// (below 2^24, the most cells a window has) shares a word with the position in the cell.
+/// cell it lies, whether it comes from a smooth patch of a depth image, the height (m, map
+/// frame) and its variance (m²). 12 bytes: the index (below 2^24, the most cells a window
+/// has) shares a word with the position in the cell and the smoothness flag.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CellPoint {
-    /// Storage index in the low 24 bits, [`CellPoint::centrality`] times 255 in the high 8.
+    /// Storage index in the low 24 bits, [`CellPoint::centrality`] times 127 in the next 7,
+    /// [`CellPoint::smooth`] in the top bit.
     packed: u32,
     /// Height (m, map frame, up).
     pub z_m: f32,
@@ -28,15 +30,24 @@ pub struct CellPoint {
 
 impl CellPoint {
     /// A measurement of the cell with storage index `cell` (below 2^24), `centrality` in
-    /// [0, 1] (stored to 1/255), height `z_m` (m) and variance `var_m2` (m²).
+    /// [0, 1] (stored to 1/127), from a smooth depth patch or not (`smooth`), height `z_m`
+    /// (m) and variance `var_m2` (m²).
     #[inline]
-    pub fn new(cell: u32, centrality: f32, z_m: f32, var_m2: f32) -> Self {
-        let q = (centrality.clamp(0.0, 1.0) * 255.0 + 0.5) as u32;
+    pub fn new(cell: u32, centrality: f32, smooth: bool, z_m: f32, var_m2: f32) -> Self {
+        let q = (centrality.clamp(0.0, 1.0) * 127.0 + 0.5) as u32;
         Self {
-            packed: (cell & 0x00ff_ffff) | (q << 24),
+            packed: (cell & 0x00ff_ffff) | (q << 24) | (u32::from(smooth) << 31),
             z_m,
             var_m2,
         }
+    }
+
+    /// True when the measurement comes from a pixel whose 3 x 3 neighbourhood of depths
+    /// holds no jump (see `depth_pass`): it cannot be a mixed ("flying") pixel, which only
+    /// occur at depth discontinuities. False for measurements that are not pixels.
+    #[inline]
+    pub fn smooth(&self) -> bool {
+        self.packed >> 31 == 1
     }
 
     /// Storage index of the cell in the window.
@@ -46,10 +57,10 @@ impl CellPoint {
     }
 
     /// Where in its cell the point lies: `1 - 2 (dx² + dy²)` with `dx, dy` its offsets from
-    /// the cell's centre in cells, so 1 at the centre and 0 at a corner (to 1/255).
+    /// the cell's centre in cells, so 1 at the centre and 0 at a corner (to 1/127).
     #[inline]
     pub fn centrality(&self) -> f32 {
-        (self.packed >> 24) as f32 / 255.0
+        ((self.packed >> 24) & 0x7f) as f32 / 127.0
     }
 }
 
@@ -93,14 +104,15 @@ impl Binned {
 /// map-frame `(x, y)` (m) and its band (below `bands`), or none outside the window (see
 /// [`crate::window::Window::binner`]); with `centrality`, each point also records where in
 /// its cell it lies ([`CellPoint::centrality`], else 0: it costs about 0.3 ms per VGA
-/// frame). Runs in parallel over [`SLICES`] slices of the input;
+/// frame); with `smooth` (and an edge filter), whether its pixel is smooth
+/// ([`CellPoint::smooth`], else false). Runs in parallel over [`SLICES`] slices of the input;
 /// within a band the measurements keep their input order. Invalid measurements are
 /// dropped and counted by reason (including `outside_window`).
 pub fn prepare_binned<M: HeightModel>(
     frame: &SensorFrame<'_>,
     model: &M,
     rays: &mut RayCache,
-    (binner, centrality): (&CellBinner, bool),
+    (binner, centrality, smooth): (&CellBinner, bool, bool),
     bands: usize,
     edge: Option<&EdgeFilter>,
     out: &mut Binned,
@@ -161,9 +173,19 @@ pub fn prepare_binned<M: HeightModel>(
                         model,
                     };
                     if centrality {
-                        crate::depth_pass::bin_depth_slice::<M, true>(slice, binner, lists, rej);
+                        crate::depth_pass::bin_depth_slice::<M, true>(
+                            slice,
+                            (binner, smooth),
+                            lists,
+                            rej,
+                        );
                     } else {
-                        crate::depth_pass::bin_depth_slice::<M, false>(slice, binner, lists, rej);
+                        crate::depth_pass::bin_depth_slice::<M, false>(
+                            slice,
+                            (binner, smooth),
+                            lists,
+                            rej,
+                        );
                     }
                 });
         }
@@ -307,6 +329,33 @@ pub fn filtered_map_points<M: HeightModel + ?Sized>(
 /// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its
 /// 3 x 3 neighbourhood (infinity when there is none), using `col` as scratch.
 fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: &mut Vec<f32>) {
+    neighbour_row(depth, v, col, out, f32::INFINITY, f32::min);
+}
+
+/// Fills `out` with, for each pixel of row `v`, the largest depth (m) of its 3 x 3
+/// neighbourhood, infinity when the neighbourhood has a pixel without depth (a hole is
+/// not a smooth surface), using `col` as scratch.
+pub(crate) fn farthest_neighbour_row(
+    depth: &DepthImage,
+    v: usize,
+    col: &mut Vec<f32>,
+    out: &mut Vec<f32>,
+) {
+    neighbour_row(depth, v, col, out, 0.0, f32::max);
+}
+
+/// [`nearest_neighbour_row`] and [`farthest_neighbour_row`]: `pick` (min or max) over the
+/// 3 x 3 neighbourhood of each pixel of row `v`, a zero depth counting as infinity, and
+/// `outside` (neutral for `pick`) beyond the image's left and right borders.
+#[inline(always)]
+fn neighbour_row(
+    depth: &DepthImage,
+    v: usize,
+    col: &mut Vec<f32>,
+    out: &mut Vec<f32>,
+    outside: f32,
+    pick: impl Fn(f32, f32) -> f32 + Copy,
+) {
     let (w, h) = (depth.width() as usize, depth.height() as usize);
     let px = depth.as_slice();
     let row = |r: usize| px.get(r * w..(r + 1) * w).unwrap_or(&[]);
@@ -317,17 +366,17 @@ fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: 
         row((v + 1).min(h.saturating_sub(1))),
     );
     col.clear();
-    col.push(f32::INFINITY);
+    col.push(outside);
     col.extend(
         up.iter()
             .zip(mid)
             .zip(down)
-            .map(|((&a, &b), &c)| nz(a).min(nz(b)).min(nz(c))),
+            .map(|((&a, &b), &c)| pick(pick(nz(a), nz(b)), nz(c))),
     );
-    col.push(f32::INFINITY);
+    col.push(outside);
     out.clear();
     out.extend(col.windows(3).map(|t| match t {
-        [a, b, c] => a.min(*b).min(*c),
+        [a, b, c] => pick(pick(*a, *b), *c),
         _ => f32::INFINITY,
     }));
 }
@@ -411,6 +460,7 @@ fn bin(
         Some(list) => list.push(CellPoint::new(
             cell,
             centrality,
+            false,
             z as f32,
             // Kept where f32 arithmetic stays finite (1e-5 mm to 100 km).
             (var as f32).clamp(VAR_MIN_M2, VAR_MAX_M2),

@@ -28,6 +28,9 @@ pub(crate) struct Acc {
     /// Sum of the measurements' centralities in the cell (see
     /// [`crate::input::CellPoint::centrality`]).
     pub(crate) sc: f32,
+    /// How many of the measurements come from smooth pixels (see
+    /// [`crate::input::CellPoint::smooth`]).
+    pub(crate) smooth: u32,
 }
 
 /// The voxel stack of a column (kept apart from [`Cell`] so that the passes over the
@@ -76,7 +79,7 @@ impl Cell {
         idx: i32,
         z_rel: f32,
         w: f32,
-        centrality: f32,
+        (centrality, smooth): (f32, bool),
     ) -> bool {
         let n = usize::from(self.n_acc);
         for a in acc.iter_mut().take(n) {
@@ -84,6 +87,7 @@ impl Cell {
                 a.sw += w;
                 a.swh += w * z_rel;
                 a.sc += centrality;
+                a.smooth += u32::from(smooth);
                 return true;
             }
         }
@@ -94,6 +98,7 @@ impl Cell {
                     sw: w,
                     swh: w * z_rel,
                     sc: centrality,
+                    smooth: u32::from(smooth),
                 };
                 self.n_acc += 1;
                 true
@@ -112,7 +117,7 @@ impl Cell {
         voxel_h: f32,
         cfg: &StackConfig,
     ) {
-        let mut highest: Option<(f32, f32, i32)> = None;
+        let mut highest: Option<(f32, f32, i32, u32)> = None;
         let accs = acc.iter().take(usize::from(self.n_acc));
         // The voxels that may feed the cell filter: those with enough of the column's
         // central support, or else the best supported one.
@@ -159,17 +164,25 @@ impl Cell {
                     v.var *= 1.0 - k;
                     v.last_frame = frame_no;
                 }
-                if a.sc >= need && highest.is_none_or(|(_, _, i)| a.idx > i) {
-                    highest = Some((v.h, v.var, a.idx));
+                if a.sc >= need && highest.is_none_or(|(_, _, i, _)| a.idx > i) {
+                    highest = Some((v.h, v.var, a.idx, a.smooth));
                 }
             }
         }
         self.n_acc = 0;
-        let Some((hp, vp, _)) = highest else { return };
+        let Some((hp, vp, _, smooth)) = highest else {
+            return;
+        };
         self.updates += 1;
         self.last_frame = frame_no;
         if !self.established {
-            self.vitality = self.vitality.saturating_add(cfg.vitality_increase);
+            // A measurement from a smooth depth patch cannot be a flying pixel: the column
+            // needs no repeated sightings to be believed.
+            self.vitality = if cfg.establish_smooth && smooth > 0 {
+                cfg.vitality_threshold.saturating_add(1)
+            } else {
+                self.vitality.saturating_add(cfg.vitality_increase)
+            };
             if self.vitality > cfg.vitality_threshold {
                 self.established = true;
             }

@@ -10,6 +10,8 @@ use crate::window::{centrality, CellBinner};
 const VALID: u32 = 1;
 const INSIDE: u32 = 2;
 const MAYBE_EDGE: u32 = 4;
+/// No hole and no depth jump in the pixel's 3 x 3 neighbourhood ([`CellPoint::smooth`]).
+const SMOOTH: u32 = 8;
 
 /// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
 /// the ray, the height (m), its variance (m²), the cell, and flags.
@@ -45,7 +47,7 @@ struct FlatRow {
 /// each point records where in its cell it lies.
 pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
-    binner: &CellBinner,
+    (binner, smooth): (&CellBinner, bool),
     lists: &mut [Vec<CellPoint>],
     rej: &mut Rejections,
 ) {
@@ -81,13 +83,23 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     let edge_slope = s
         .edge
         .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
+    // The edge filter's noise allowance per metre of depth standard deviation.
+    let edge_noise = s.edge.map_or(0.0, |e| e.threshold_m(0.0, f_px, 1.0) as f32);
     let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
+    let mut farthest: Vec<f32> = Vec::new();
     let mut kept: Vec<u32> = Vec::new();
     let mut r = FlatRow::default();
     for v in s.rows.clone() {
         let Some(drow) = s.row_inputs(v, &mut rays, &mut scratch, &mut nearest) else {
             continue;
         };
+        // Smoothness needs the edge filter's notion of a jump.
+        if let (true, Some(_)) = (smooth, s.edge) {
+            crate::binned::farthest_neighbour_row(s.depth, v, &mut scratch, &mut farthest);
+        } else {
+            farthest.clear();
+        }
+        farthest.resize(drow.len(), f32::INFINITY);
         // Buffers sized once per slice; every entry up to `n` is written below.
         let len = drow.len();
         for buf in [
@@ -104,12 +116,12 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             buf.resize(len, 0.0);
         }
         r.flags.resize(len, 0);
-        let n = len.min(rays.len()).min(nearest.len());
+        let n = len.min(rays.len()).min(nearest.len()).min(farthest.len());
         for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
             (*x, *y) = (rx as f32, ry as f32);
         }
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
-        let (xs, ys, near) = (&r.xn[..n], &r.yn[..n], &nearest[..n]);
+        let (xs, ys, near, far) = (&r.xn[..n], &r.yn[..n], &nearest[..n], &farthest[..n]);
         let (zs, vars, rows, cols, flags) = (
             &mut r.z[..n],
             &mut r.var[..n],
@@ -142,6 +154,15 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 + u32::from(inside) * INSIDE
                 + u32::from(maybe_edge) * MAYBE_EDGE;
         }
+        if smooth {
+            for i in 0..n {
+                // The jump allowed across the neighbourhood: the edge filter's threshold.
+                let d = d_row[i];
+                let ok =
+                    far[i] - near[i] <= edge_slope * d + edge_noise * s.model.depth_sigma_f32(d);
+                flags[i] |= u32::from(ok) * SMOOTH;
+            }
+        }
         if CENTRALITY {
             for i in 0..n {
                 cens[i] = centrality(cols[i], rows[i]);
@@ -156,6 +177,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             .zip(drow.iter().zip(&nearest))
             .enumerate()
         {
+            let f = f & !SMOOTH;
             let keep = if f == VALID | INSIDE {
                 // The common case: valid, in the window, away from depth jumps.
                 true
@@ -192,10 +214,12 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             } else {
                 0.0
             };
+            let smooth_px = r.flags.get(u).is_some_and(|&f| f & SMOOTH != 0);
             match lists.get_mut(band as usize) {
                 Some(list) => list.push(CellPoint::new(
                     cell as u32,
                     centrality,
+                    smooth_px,
                     z,
                     var.clamp(VAR_MIN_M2, VAR_MAX_M2),
                 )),

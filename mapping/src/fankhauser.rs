@@ -258,7 +258,7 @@ impl ElevationMapper for FankhauserMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            (&self.window.binner(size.div_ceil(BANDS)), false),
+            (&self.window.binner(size.div_ceil(BANDS)), false, false),
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,

@@ -85,7 +85,13 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             }
             let idx_f = (p.z_m * inv_voxel_h).floor();
             let z_rel = p.z_m - idx_f * voxel_h;
-            if cell.accumulate(acc, idx_f as i32, z_rel, 1.0 / p.var_m2, p.centrality()) {
+            if cell.accumulate(
+                acc,
+                idx_f as i32,
+                z_rel,
+                1.0 / p.var_m2,
+                (p.centrality(), p.smooth()),
+            ) {
                 used += 1;
             } else {
                 overflow += 1;

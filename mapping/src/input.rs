@@ -127,6 +127,11 @@ pub trait HeightModel: Sync {
     fn range_m(&self) -> (f64, f64);
     /// Standard deviation of a depth measurement `d` (m) along the optical axis (m).
     fn depth_sigma_m(&self, d: f64) -> f64;
+    /// [`HeightModel::depth_sigma_m`] in f32, for the vectorised input stage (override it
+    /// with branch-free f32 arithmetic).
+    fn depth_sigma_f32(&self, d: f32) -> f32 {
+        self.depth_sigma_m(f64::from(d)) as f32
+    }
     /// [`HeightModel::pixel_variance`] in f32, for the mappers' vectorised input stage: a
     /// pixel with undistorted normalised coordinates `(xn, yn)` and depth `d` (m). Must be
     /// free of branches and calls that stop the vectorisation.
@@ -258,10 +263,16 @@ impl HeightModel for PrimeSenseHeight {
     }
 
     #[inline(always)]
-    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+    fn depth_sigma_f32(&self, d: f32) -> f32 {
         let m = &self.model;
         let [k1, k2, k3, k4] = m.depth_sigma_coeffs.map(|c| c as f32);
-        let s = (((k1 * d + k2) * d + k3) * d + k4).max(m.min_sigma_d_m as f32);
+        (((k1 * d + k2) * d + k3) * d + k4).max(m.min_sigma_d_m as f32)
+    }
+
+    #[inline(always)]
+    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+        let m = &self.model;
+        let s = self.depth_sigma_f32(d);
         let [r3x, r3y, r3z] = k.r3;
         let a = r3x * d * k.inv_fx;
         let b = r3y * d * k.inv_fy;

@@ -148,7 +148,7 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
             frame,
             model,
             &mut RayCache::default(),
-            (binner, true),
+            (binner, true, true),
             bands,
             Some(edge),
             &mut binned,
@@ -201,8 +201,8 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
             assert_eq!(ca, cb);
             assert!((za - zb).abs() < 1e-5, "cell {ca}: heights {za} vs {zb}");
             assert_relative_eq!(*va, *vb, max_relative = 1e-4);
-            // Stored to 1/255.
-            let tol = n / 510.0 + 1e-4;
+            // Stored to 1/127 (the eighth bit of the byte holds CellPoint::smooth).
+            let tol = n / 254.0 + 1e-4;
             assert!(
                 (qa - qb).abs() <= tol,
                 "cell {ca}: centralities {qa} vs {qb}"
@@ -217,4 +217,53 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
         bands,
         &edge,
     );
+}
+
+/// A pixel is smooth when its 3 x 3 neighbourhood holds no hole and no depth jump: on two
+/// fronto-parallel planes (1.0 m left, 1.5 m right) with one hole, exactly the kept pixels
+/// beside the jump and around the hole are not (the jump's far side is dropped by the edge
+/// filter); without the request, no point is smooth.
+#[test]
+fn points_from_pixels_beside_a_depth_jump_or_a_hole_are_not_smooth() {
+    use crate::window::Window;
+    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let mut depth = DepthImage::filled(64, 48, 1.0);
+    for v in 0..48u32 {
+        for u in 32..64u32 {
+            *depth.get_mut(u, v).unwrap() = 1.5;
+        }
+    }
+    *depth.get_mut(10, 10).unwrap() = 0.0;
+    let pose = Isometry3::from_parts(
+        Translation3::new(1.0, 2.0, 0.5),
+        UnitQuaternion::from_euler_angles(-2.0, 0.05, 0.4),
+    );
+    let frame = SensorFrame::depth(&depth, &cam, pose, 0.0).unwrap();
+    let mut window: Window<u8> = Window::new(400, 0.01, (0, 0));
+    window.follow(&pose, 0.9, 0.0, |_, _| {});
+    let binner = window.binner(50);
+    let bands = 8;
+    let count = |smooth: bool| {
+        let mut binned = Binned::default();
+        let rej = prepare_binned(
+            &frame,
+            &PrimeSenseHeight::default(),
+            &mut RayCache::default(),
+            (&binner, true, smooth),
+            bands,
+            Some(&EdgeFilter::default()),
+            &mut binned,
+        );
+        let all: Vec<CellPoint> = (0..bands).flat_map(|b| binned.band(b).copied()).collect();
+        (rej, all.len(), all.iter().filter(|p| p.smooth()).count())
+    };
+    let (rej, kept, smooth) = count(true);
+    assert_eq!(
+        (rej.outside_window, rej.depth_edge, rej.no_return),
+        (0, 48, 1)
+    );
+    assert_eq!(kept, 64 * 48 - 48 - 1);
+    // Column 31 (the near side of the jump, 48 pixels) and the hole's 8 neighbours.
+    assert_eq!(kept - smooth, 48 + 8);
+    assert_eq!(count(false).2, 0);
 }

@@ -65,6 +65,14 @@ pub struct StackConfig {
     pub vitality_decrease: u8,
     /// Vitality threshold above which a column is established (`V_t`).
     pub vitality_threshold: u8,
+    /// Establish a column at once, without the vitality counter's repeated sightings, when
+    /// the voxel a frame feeds to its cell filter holds a measurement from a smooth depth
+    /// patch: a pixel whose 3 x 3 neighbourhood holds no hole and no depth jump beyond the
+    /// edge filter's threshold (an extension of paper 000). A flying (mixed) pixel only
+    /// occurs at a depth discontinuity, so it is never smooth and still waits for the
+    /// counter; a column seen once or twice on open ground, which the counter would drop,
+    /// is kept. Needs the edge filter (its threshold is the jump).
+    pub establish_smooth: bool,
     /// Step edges: the cell filter takes the highest voxel measured in a frame among those
     /// holding at least this fraction of the column's measurements weighted by where they
     /// land in the cell (1 at the centre, 0 at a corner), or else the best supported one,
@@ -115,6 +123,7 @@ impl Default for StackConfig {
             vitality_increase: 3,
             vitality_decrease: 2,
             vitality_threshold: 7,
+            establish_smooth: true,
             step_support_fraction: 0.5,
             visibility_check: true,
             visibility_bin_m: 0.01,
@@ -465,6 +474,7 @@ impl ElevationMapper for StackMapper {
             (
                 &self.window.binner(size.div_ceil(BANDS)),
                 cfg.step_support_fraction > 0.0,
+                cfg.establish_smooth,
             ),
             BANDS,
             cfg.edge_filter.as_ref(),

@@ -541,3 +541,37 @@ fn a_cell_straddling_a_step_follows_the_surface_under_its_centre() {
     })
     .is_err());
 }
+
+/// `establish_smooth`: a floor seen once, from pixels whose neighbourhoods hold no depth
+/// jump, is in the map at once; with paper 000's counter alone it needs three frames.
+#[test]
+fn a_floor_seen_once_from_smooth_pixels_is_established_at_once() {
+    let cam = stride_core::camera::PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let depth = stride_core::image::DepthImage::filled(64, 48, 0.5);
+    // Looking straight down from 0.5 m: camera x along +x, y along -y, z down.
+    let rot =
+        nalgebra::Rotation3::from_basis_unchecked(&[Vector3::x(), -Vector3::y(), -Vector3::z()]);
+    let pose = Isometry3::from_parts(
+        Translation3::new(0.0, 0.0, 0.5),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    );
+    let frame = SensorFrame::depth(&depth, &cam, pose, 0.0).unwrap();
+    let mapped_after_one = |establish_smooth: bool| {
+        let mut m = StackMapper::new(StackConfig {
+            establish_smooth,
+            ..StackConfig::default()
+        })
+        .unwrap();
+        m.integrate(&frame);
+        m.export()
+            .elevation
+            .as_slice()
+            .iter()
+            .filter(|h| !h.is_nan())
+            .count()
+    };
+    let (with, without) = (mapped_after_one(true), mapped_after_one(false));
+    // The footprint is about 0.6 x 0.46 m: over 2,000 cells of 1 cm.
+    assert!(with > 2000, "{with} cells");
+    assert_eq!(without, 0);
+}
