@@ -63,14 +63,15 @@ fn stack_map_beats_the_baseline_and_leaves_no_phantoms() {
     assert!(tmp.path().join("both/report.html").is_file());
 
     // Beside the naive per-cell median and the cells seen (measurements on the true
-    // surface), every map is scored over the cells seen. Measured: stack coverage 0.91,
-    // RMSE away from steps 1.5 mm against the baseline's 2.3 mm.
+    // surface), every map is scored over the cells seen. Measured: stack coverage 0.989
+    // (0.902 before columns from smooth pixels were established at once), RMSE away from
+    // steps 1.5 mm against the baseline's 2.3 mm.
     let all = map(&seq, &tmp.path().join("all"), &["--mapper", "all"]);
     let over = |m: &str, k: &str| num(&all[m]["over_seen_cells"], k);
     assert_eq!(over("seen", "coverage"), 1.0, "{all}");
     assert_eq!(over("naive", "coverage"), 1.0, "{all}");
     assert!(over("seen", "cells_seen") > 10000.0, "{all}");
-    assert!(over("stack", "coverage") > 0.85, "{all}");
+    assert!(over("stack", "coverage") > 0.95, "{all}");
     assert!(
         over("stack", "rmse_away_m") < over("fankhauser", "rmse_away_m"),
         "{all}"

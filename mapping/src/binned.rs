@@ -42,9 +42,10 @@ impl CellPoint {
         }
     }
 
-    /// True when the measurement comes from a pixel whose 3 x 3 neighbourhood of depths
-    /// holds no jump (see `depth_pass`): it cannot be a mixed ("flying") pixel, which only
-    /// occur at depth discontinuities. False for measurements that are not pixels.
+    /// True when the measurement comes from a pixel whose 5 x 5 neighbourhood of depths
+    /// (missing returns left out) spans no jump (see `depth_pass`): it cannot be a mixed
+    /// ("flying") pixel, which only occurs at a depth discontinuity. False for measurements
+    /// that are not pixels, and when the mapper did not ask for the test.
     #[inline]
     pub fn smooth(&self) -> bool {
         self.packed >> 31 == 1
@@ -329,33 +330,6 @@ pub fn filtered_map_points<M: HeightModel + ?Sized>(
 /// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its
 /// 3 x 3 neighbourhood (infinity when there is none), using `col` as scratch.
 fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: &mut Vec<f32>) {
-    neighbour_row(depth, v, col, out, f32::INFINITY, f32::min);
-}
-
-/// Fills `out` with, for each pixel of row `v`, the largest depth (m) of its 3 x 3
-/// neighbourhood, infinity when the neighbourhood has a pixel without depth (a hole is
-/// not a smooth surface), using `col` as scratch.
-pub(crate) fn farthest_neighbour_row(
-    depth: &DepthImage,
-    v: usize,
-    col: &mut Vec<f32>,
-    out: &mut Vec<f32>,
-) {
-    neighbour_row(depth, v, col, out, 0.0, f32::max);
-}
-
-/// [`nearest_neighbour_row`] and [`farthest_neighbour_row`]: `pick` (min or max) over the
-/// 3 x 3 neighbourhood of each pixel of row `v`, a zero depth counting as infinity, and
-/// `outside` (neutral for `pick`) beyond the image's left and right borders.
-#[inline(always)]
-fn neighbour_row(
-    depth: &DepthImage,
-    v: usize,
-    col: &mut Vec<f32>,
-    out: &mut Vec<f32>,
-    outside: f32,
-    pick: impl Fn(f32, f32) -> f32 + Copy,
-) {
     let (w, h) = (depth.width() as usize, depth.height() as usize);
     let px = depth.as_slice();
     let row = |r: usize| px.get(r * w..(r + 1) * w).unwrap_or(&[]);
@@ -366,17 +340,17 @@ fn neighbour_row(
         row((v + 1).min(h.saturating_sub(1))),
     );
     col.clear();
-    col.push(outside);
+    col.push(f32::INFINITY);
     col.extend(
         up.iter()
             .zip(mid)
             .zip(down)
-            .map(|((&a, &b), &c)| pick(pick(nz(a), nz(b)), nz(c))),
+            .map(|((&a, &b), &c)| nz(a).min(nz(b)).min(nz(c))),
     );
-    col.push(outside);
+    col.push(f32::INFINITY);
     out.clear();
     out.extend(col.windows(3).map(|t| match t {
-        [a, b, c] => pick(pick(*a, *b), *c),
+        [a, b, c] => a.min(*b).min(*c),
         _ => f32::INFINITY,
     }));
 }

@@ -10,8 +10,18 @@ use crate::window::{centrality, CellBinner};
 const VALID: u32 = 1;
 const INSIDE: u32 = 2;
 const MAYBE_EDGE: u32 = 4;
-/// No hole and no depth jump in the pixel's 3 x 3 neighbourhood ([`CellPoint::smooth`]).
+/// No depth jump in the pixel's neighbourhood ([`CellPoint::smooth`]).
 const SMOOTH: u32 = 8;
+/// Radius (px) of the neighbourhood of the smoothness test: 5 x 5, so that a jump across a
+/// missing pixel (edges often drop returns beside mixed pixels) is still seen.
+const SMOOTH_RADIUS_PX: usize = 2;
+// `depth_span_row` takes its five shifted views for this radius.
+const _: () = assert!(SMOOTH_RADIUS_PX == 2);
+/// The smoothness test allows the depths of the neighbourhood to span this many times the
+/// edge filter's one-pixel jump (`d / (f tan min_grazing)`), plus its noise allowance: over
+/// the 4 px across the neighbourhood, a surface seen at about 21 deg or more (8 deg at
+/// the default grazing limit divided down by 4 / 1.5).
+const SMOOTH_SPAN: f32 = 1.5;
 
 /// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
 /// the ray, the height (m), its variance (m²), the cell, and flags.
@@ -86,7 +96,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     // The edge filter's noise allowance per metre of depth standard deviation.
     let edge_noise = s.edge.map_or(0.0, |e| e.threshold_m(0.0, f_px, 1.0) as f32);
     let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
-    let mut farthest: Vec<f32> = Vec::new();
+    let (mut span, mut span_cols) = (Vec::new(), (Vec::new(), Vec::new()));
     let mut kept: Vec<u32> = Vec::new();
     let mut r = FlatRow::default();
     for v in s.rows.clone() {
@@ -95,11 +105,11 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         };
         // Smoothness needs the edge filter's notion of a jump.
         if let (true, Some(_)) = (smooth, s.edge) {
-            crate::binned::farthest_neighbour_row(s.depth, v, &mut scratch, &mut farthest);
+            depth_span_row(s.depth, v, &mut span_cols, &mut span);
         } else {
-            farthest.clear();
+            span.clear();
         }
-        farthest.resize(drow.len(), f32::INFINITY);
+        span.resize(drow.len(), f32::INFINITY);
         // Buffers sized once per slice; every entry up to `n` is written below.
         let len = drow.len();
         for buf in [
@@ -116,12 +126,12 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             buf.resize(len, 0.0);
         }
         r.flags.resize(len, 0);
-        let n = len.min(rays.len()).min(nearest.len()).min(farthest.len());
+        let n = len.min(rays.len()).min(nearest.len()).min(span.len());
         for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
             (*x, *y) = (rx as f32, ry as f32);
         }
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
-        let (xs, ys, near, far) = (&r.xn[..n], &r.yn[..n], &nearest[..n], &farthest[..n]);
+        let (xs, ys, near, spans) = (&r.xn[..n], &r.yn[..n], &nearest[..n], &span[..n]);
         let (zs, vars, rows, cols, flags) = (
             &mut r.z[..n],
             &mut r.var[..n],
@@ -156,10 +166,10 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         }
         if smooth {
             for i in 0..n {
-                // The jump allowed across the neighbourhood: the edge filter's threshold.
+                // The span allowed across the neighbourhood: from the edge filter's bound.
                 let d = d_row[i];
-                let ok =
-                    far[i] - near[i] <= edge_slope * d + edge_noise * s.model.depth_sigma_f32(d);
+                let ok = spans[i]
+                    <= SMOOTH_SPAN * edge_slope * d + edge_noise * s.model.depth_sigma_f32(d);
                 flags[i] |= u32::from(ok) * SMOOTH;
             }
         }
@@ -225,6 +235,82 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 )),
                 None => rej.outside_window += 1,
             }
+        }
+    }
+}
+
+/// Fills `out` with, for each pixel of row `v`, the span (largest minus smallest, m) of the
+/// non-zero depths in its (2 [`SMOOTH_RADIUS_PX`] + 1)-square neighbourhood, clipped at the
+/// image's borders (0 when only one depth is there). Missing returns are left out: a hole
+/// is no jump, and the grazing terrain that drops scattered returns stays smooth; a jump
+/// across a hole is still seen from either side. `cols` is scratch (the per-column minimum
+/// and maximum over the rows).
+fn depth_span_row(
+    depth: &stride_core::image::DepthImage,
+    v: usize,
+    (col_min, col_max): &mut (Vec<f32>, Vec<f32>),
+    out: &mut Vec<f32>,
+) {
+    let (w, h) = (depth.width() as usize, depth.height() as usize);
+    let px = depth.as_slice();
+    let r = SMOOTH_RADIUS_PX;
+    col_min.clear();
+    col_min.resize(w, f32::INFINITY);
+    col_max.clear();
+    col_max.resize(w, 0.0);
+    for y in v.saturating_sub(r)..(v + r + 1).min(h) {
+        let Some(row) = px.get(y * w..(y + 1) * w) else {
+            continue;
+        };
+        // Branch-free, so that it vectorises; NaN and infinities count as missing.
+        for ((lo, hi), &d) in col_min.iter_mut().zip(col_max.iter_mut()).zip(row) {
+            let ok = (d > 0.0) & (d < f32::INFINITY);
+            *lo = lo.min(if ok { d } else { f32::INFINITY });
+            *hi = hi.max(if ok { d } else { 0.0 });
+        }
+    }
+    out.clear();
+    out.resize(w, 0.0);
+    let span = |a: usize, b: usize| {
+        let lo = col_min.get(a..b).map_or(f32::INFINITY, |s| {
+            s.iter().fold(f32::INFINITY, |m, &x| m.min(x))
+        });
+        let hi = col_max
+            .get(a..b)
+            .map_or(0.0, |s| s.iter().fold(0.0f32, |m, &x| m.max(x)));
+        (hi - lo).max(0.0)
+    };
+    // The interior from five shifted views of the columns (vectorised), then the borders.
+    let n = w.saturating_sub(2 * r);
+    if let (Some(lo), Some(hi), Some(dst)) = (
+        col_min.get(..n + 2 * r),
+        col_max.get(..n + 2 * r),
+        out.get_mut(r..r + n),
+    ) {
+        let (l0, l1, l2, l3, l4) = (
+            &lo[..n],
+            &lo[1..n + 1],
+            &lo[2..n + 2],
+            &lo[3..n + 3],
+            &lo[4..n + 4],
+        );
+        let (h0, h1, h2, h3, h4) = (
+            &hi[..n],
+            &hi[1..n + 1],
+            &hi[2..n + 2],
+            &hi[3..n + 3],
+            &hi[4..n + 4],
+        );
+        for i in 0..n {
+            let lo = l0[i].min(l1[i]).min(l2[i]).min(l3[i]).min(l4[i]);
+            let hi = h0[i].max(h1[i]).max(h2[i]).max(h3[i]).max(h4[i]);
+            dst[i] = (hi - lo).max(0.0);
+        }
+    }
+    for u in (0..r.min(w)).chain(w.saturating_sub(r).max(r)..w) {
+        let v = span(u.saturating_sub(r), (u + r + 1).min(w));
+        if let Some(o) = out.get_mut(u) {
+            *o = v;
         }
     }
 }

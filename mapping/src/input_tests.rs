@@ -219,12 +219,12 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
     );
 }
 
-/// A pixel is smooth when its 3 x 3 neighbourhood holds no hole and no depth jump: on two
-/// fronto-parallel planes (1.0 m left, 1.5 m right) with one hole, exactly the kept pixels
-/// beside the jump and around the hole are not (the jump's far side is dropped by the edge
-/// filter); without the request, no point is smooth.
+/// A pixel is smooth when its 5 x 5 neighbourhood (missing returns left out) spans no depth
+/// jump: on two fronto-parallel planes (1.0 m left, 1.5 m right) with one hole, exactly the
+/// kept pixels within two columns of the jump are not (the jump's far side is dropped by the
+/// edge filter; the hole changes nothing); without the request, no point is smooth.
 #[test]
-fn points_from_pixels_beside_a_depth_jump_or_a_hole_are_not_smooth() {
+fn points_from_pixels_near_a_depth_jump_are_not_smooth() {
     use crate::window::Window;
     let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
     let mut depth = DepthImage::filled(64, 48, 1.0);
@@ -263,7 +263,7 @@ fn points_from_pixels_beside_a_depth_jump_or_a_hole_are_not_smooth() {
         (0, 48, 1)
     );
     assert_eq!(kept, 64 * 48 - 48 - 1);
-    // Column 31 (the near side of the jump, 48 pixels) and the hole's 8 neighbours.
-    assert_eq!(kept - smooth, 48 + 8);
+    // Columns 30 and 31 (near side) and 33 (far side; 32 is dropped), 48 pixels each.
+    assert_eq!(kept - smooth, 3 * 48);
     assert_eq!(count(false).2, 0);
 }

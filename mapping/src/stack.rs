@@ -67,11 +67,12 @@ pub struct StackConfig {
     pub vitality_threshold: u8,
     /// Establish a column at once, without the vitality counter's repeated sightings, when
     /// the voxel a frame feeds to its cell filter holds a measurement from a smooth depth
-    /// patch: a pixel whose 3 x 3 neighbourhood holds no hole and no depth jump beyond the
-    /// edge filter's threshold (an extension of paper 000). A flying (mixed) pixel only
-    /// occurs at a depth discontinuity, so it is never smooth and still waits for the
-    /// counter; a column seen once or twice on open ground, which the counter would drop,
-    /// is kept. Needs the edge filter (its threshold is the jump).
+    /// patch: a pixel whose 5 x 5 neighbourhood (missing returns left out) spans no more
+    /// depth than a surface seen at about 21 deg or steeper, plus the edge filter's noise
+    /// allowance (an extension of paper 000). A flying (mixed) pixel only occurs at a depth
+    /// discontinuity, so it is never smooth and still waits for the counter; a column seen
+    /// once or twice on open ground, which the counter would drop, is kept. Needs the edge
+    /// filter (its bound is the jump).
     pub establish_smooth: bool,
     /// Step edges: the cell filter takes the highest voxel measured in a frame among those
     /// holding at least this fraction of the column's measurements weighted by where they
