@@ -19,8 +19,8 @@ const SMOOTH_RADIUS_PX: usize = 2;
 const _: () = assert!(SMOOTH_RADIUS_PX == 2);
 /// The smoothness test allows the depths of the neighbourhood to span this many times the
 /// edge filter's one-pixel jump (`d / (f tan min_grazing)`), plus its noise allowance: over
-/// the 4 px across the neighbourhood, a surface seen at about 21 deg or more (8 deg at
-/// the default grazing limit divided down by 4 / 1.5).
+/// the 4 px across the neighbourhood, a surface seen at about 21 deg or more from the
+/// default 8 deg grazing limit (tan 21 deg = tan 8 deg x 4 / 1.5).
 const SMOOTH_SPAN: f32 = 1.5;
 
 /// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
@@ -164,7 +164,8 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 + u32::from(inside) * INSIDE
                 + u32::from(maybe_edge) * MAYBE_EDGE;
         }
-        if smooth {
+        // Without an edge filter there is no bound (and the allowance would be infinite).
+        if smooth && s.edge.is_some() {
             for i in 0..n {
                 // The span allowed across the neighbourhood: from the edge filter's bound.
                 let d = d_row[i];

@@ -543,7 +543,8 @@ fn a_cell_straddling_a_step_follows_the_surface_under_its_centre() {
 }
 
 /// `establish_smooth`: a floor seen once, from pixels whose neighbourhoods hold no depth
-/// jump, is in the map at once; with paper 000's counter alone it needs three frames.
+/// jump, is in the map at once; with paper 000's counter alone (or without the edge filter
+/// that defines a jump) it needs three frames.
 #[test]
 fn a_floor_seen_once_from_smooth_pixels_is_established_at_once() {
     let cam = stride_core::camera::PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
@@ -556,10 +557,12 @@ fn a_floor_seen_once_from_smooth_pixels_is_established_at_once() {
         UnitQuaternion::from_rotation_matrix(&rot),
     );
     let frame = SensorFrame::depth(&depth, &cam, pose, 0.0).unwrap();
-    let mapped_after_one = |establish_smooth: bool| {
+    let mapped_after_one = |establish_smooth: bool, edge_filter: bool| {
+        let d = StackConfig::default();
         let mut m = StackMapper::new(StackConfig {
             establish_smooth,
-            ..StackConfig::default()
+            edge_filter: d.edge_filter.filter(|_| edge_filter),
+            ..d
         })
         .unwrap();
         m.integrate(&frame);
@@ -570,8 +573,10 @@ fn a_floor_seen_once_from_smooth_pixels_is_established_at_once() {
             .filter(|h| !h.is_nan())
             .count()
     };
-    let (with, without) = (mapped_after_one(true), mapped_after_one(false));
+    let (with, without) = (mapped_after_one(true, true), mapped_after_one(false, true));
     // The footprint is about 0.6 x 0.46 m: over 2,000 cells of 1 cm.
     assert!(with > 2000, "{with} cells");
     assert_eq!(without, 0);
+    // Without the edge filter there is no notion of a jump: nothing counts as smooth.
+    assert_eq!(mapped_after_one(true, false), 0);
 }
