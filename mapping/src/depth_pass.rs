@@ -15,7 +15,7 @@ const SMOOTH: u32 = 8;
 /// Radius (px) of the neighbourhood of the smoothness test: 5 x 5, so that a jump across a
 /// missing pixel (edges often drop returns beside mixed pixels) is still seen.
 const SMOOTH_RADIUS_PX: usize = 2;
-// `depth_span_row` takes its five shifted views for this radius.
+// `depth_span_row` takes its interior from `window5`, five values wide.
 const _: () = assert!(SMOOTH_RADIUS_PX == 2);
 /// The smoothness test allows the depths of the neighbourhood to span this many times the
 /// edge filter's one-pixel jump (`d / (f tan min_grazing)`), plus its noise allowance: over
@@ -245,7 +245,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
 /// image's borders (0 when only one depth is there). Missing returns are left out: a hole
 /// is no jump, and the grazing terrain that drops scattered returns stays smooth; a jump
 /// across a hole is still seen from either side. `cols` is scratch (the per-column minimum
-/// and maximum over the rows).
+/// and maximum over the rows, padded at both ends).
 fn depth_span_row(
     depth: &stride_core::image::DepthImage,
     v: usize,
@@ -255,63 +255,48 @@ fn depth_span_row(
     let (w, h) = (depth.width() as usize, depth.height() as usize);
     let px = depth.as_slice();
     let r = SMOOTH_RADIUS_PX;
+    // Padded with `r` neutral values on each side, so that every pixel's window is five
+    // columns wide, borders included.
     col_min.clear();
-    col_min.resize(w, f32::INFINITY);
+    col_min.resize(w + 2 * r, f32::INFINITY);
     col_max.clear();
-    col_max.resize(w, 0.0);
+    col_max.resize(w + 2 * r, 0.0);
     for y in v.saturating_sub(r)..(v + r + 1).min(h) {
         let Some(row) = px.get(y * w..(y + 1) * w) else {
             continue;
         };
         // Branch-free, so that it vectorises; NaN and infinities count as missing.
-        for ((lo, hi), &d) in col_min.iter_mut().zip(col_max.iter_mut()).zip(row) {
+        for ((lo, hi), &d) in col_min
+            .iter_mut()
+            .skip(r)
+            .zip(col_max.iter_mut().skip(r))
+            .zip(row)
+        {
             let ok = (d > 0.0) & (d < f32::INFINITY);
             *lo = lo.min(if ok { d } else { f32::INFINITY });
             *hi = hi.max(if ok { d } else { 0.0 });
         }
     }
     out.clear();
-    out.resize(w, 0.0);
-    let span = |a: usize, b: usize| {
-        let lo = col_min.get(a..b).map_or(f32::INFINITY, |s| {
-            s.iter().fold(f32::INFINITY, |m, &x| m.min(x))
-        });
-        let hi = col_max
-            .get(a..b)
-            .map_or(0.0, |s| s.iter().fold(0.0f32, |m, &x| m.max(x)));
-        (hi - lo).max(0.0)
-    };
-    // The interior from five shifted views of the columns (vectorised), then the borders.
-    let n = w.saturating_sub(2 * r);
-    if let (Some(lo), Some(hi), Some(dst)) = (
-        col_min.get(..n + 2 * r),
-        col_max.get(..n + 2 * r),
-        out.get_mut(r..r + n),
-    ) {
-        let (l0, l1, l2, l3, l4) = (
-            &lo[..n],
-            &lo[1..n + 1],
-            &lo[2..n + 2],
-            &lo[3..n + 3],
-            &lo[4..n + 4],
-        );
-        let (h0, h1, h2, h3, h4) = (
-            &hi[..n],
-            &hi[1..n + 1],
-            &hi[2..n + 2],
-            &hi[3..n + 3],
-            &hi[4..n + 4],
-        );
-        for i in 0..n {
-            let lo = l0[i].min(l1[i]).min(l2[i]).min(l3[i]).min(l4[i]);
-            let hi = h0[i].max(h1[i]).max(h2[i]).max(h3[i]).max(h4[i]);
-            dst[i] = (hi - lo).max(0.0);
-        }
-    }
-    for u in (0..r.min(w)).chain(w.saturating_sub(r).max(r)..w) {
-        let v = span(u.saturating_sub(r), (u + r + 1).min(w));
-        if let Some(o) = out.get_mut(u) {
-            *o = v;
-        }
-    }
+    out.extend(
+        window5(col_min, f32::min)
+            .zip(window5(col_max, f32::max))
+            .map(|(lo, hi)| (hi - lo).max(0.0)),
+    );
+}
+
+/// `pick` (min or max) over each window of five consecutive values of `s`, in order
+/// (`s.len() - 4` values): the zip of five shifted slices, which the compiler vectorises.
+fn window5<'a>(
+    s: &'a [f32],
+    pick: impl Fn(f32, f32) -> f32 + Copy + 'a,
+) -> impl Iterator<Item = f32> + 'a {
+    let from = |k: usize| s.get(k..).unwrap_or(&[]);
+    from(0)
+        .iter()
+        .zip(from(1))
+        .zip(from(2))
+        .zip(from(3))
+        .zip(from(4))
+        .map(move |((((a, b), c), d), e)| pick(pick(pick(pick(*a, *b), *c), *d), *e))
 }
