@@ -73,8 +73,7 @@ impl Backend {
         ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let mut removed = 0;
         for (_, k) in ranked.into_iter().take(excess) {
-            if self.map.cull_keyframe(k, first) {
-                self.pose_edges.retain(|e| e.from != k && e.to != k);
+            if self.remove_keyframe(k, first) {
                 removed += 1;
             }
         }
@@ -120,10 +119,17 @@ impl Backend {
         else {
             return false;
         };
+        self.remove_keyframe(k, parent)
+    }
+
+    /// Culls keyframe `k` from the map (its frames kept relative to `parent`), with its pose
+    /// edges and its entry in the place database. False when the map refused.
+    fn remove_keyframe(&mut self, k: KeyframeId, parent: KeyframeId) -> bool {
         if !self.map.cull_keyframe(k, parent) {
             return false;
         }
         self.pose_edges.retain(|e| e.from != k && e.to != k);
+        self.places.forget(k);
         true
     }
 }

@@ -118,6 +118,11 @@ pub(crate) struct Places {
 }
 
 impl Places {
+    /// Forgets keyframe `id` (culled from the map).
+    pub(crate) fn forget(&mut self, id: KeyframeId) {
+        self.database.remove(id);
+    }
+
     /// Loads the shipped vocabulary when loop closure looks by appearance.
     pub(crate) fn new(params: &LoopParams) -> Result<Self, BackendError> {
         let vocabulary = if params.enabled && params.appearance_candidates > 0 {
@@ -133,8 +138,8 @@ impl Places {
 }
 
 impl Backend {
-    /// Adds keyframe `id`'s bag of words (its described features) to the place database,
-    /// and forgets keyframes culled since; nothing when appearance search is off.
+    /// Adds keyframe `id`'s bag of words (its described features) to the place database
+    /// (culling removes it again); nothing when appearance search is off.
     pub(crate) fn index_place(&mut self, id: KeyframeId) {
         let Places {
             vocabulary,
@@ -145,13 +150,6 @@ impl Backend {
         };
         let descriptors: Vec<[u8; 32]> = kf.features.iter().filter_map(|f| f.descriptor).collect();
         database.add(id, v.transform(&descriptors));
-        let gone: Vec<u64> = database
-            .ids()
-            .filter(|&k| self.map.keyframe(k).is_none())
-            .collect();
-        for k in gone {
-            database.remove(k);
-        }
     }
 
     /// Looks for a loop at keyframe `id` and closes it (see the module documentation).

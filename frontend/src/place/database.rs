@@ -38,11 +38,6 @@ impl PlaceDatabase {
         self.entries.is_empty()
     }
 
-    /// The identifiers held, in increasing order.
-    pub fn ids(&self) -> impl Iterator<Item = u64> + '_ {
-        self.entries.keys().copied()
-    }
-
     /// Keyframe `id`'s bag of words, when held.
     pub fn get(&self, id: u64) -> Option<&BowVector> {
         self.entries.get(&id)
