@@ -327,34 +327,6 @@ pub fn filtered_map_points<M: HeightModel + ?Sized>(
     (out, rej)
 }
 
-/// Fills `out` with, for each pixel of row `v`, the smallest non-zero depth (m) of its
-/// 3 x 3 neighbourhood (infinity when there is none), using `col` as scratch.
-fn nearest_neighbour_row(depth: &DepthImage, v: usize, col: &mut Vec<f32>, out: &mut Vec<f32>) {
-    let (w, h) = (depth.width() as usize, depth.height() as usize);
-    let px = depth.as_slice();
-    let row = |r: usize| px.get(r * w..(r + 1) * w).unwrap_or(&[]);
-    let nz = |x: f32| if x > 0.0 { x } else { f32::INFINITY };
-    let (up, mid, down) = (
-        row(v.saturating_sub(1)),
-        row(v),
-        row((v + 1).min(h.saturating_sub(1))),
-    );
-    col.clear();
-    col.push(f32::INFINITY);
-    col.extend(
-        up.iter()
-            .zip(mid)
-            .zip(down)
-            .map(|((&a, &b), &c)| nz(a).min(nz(b)).min(nz(c))),
-    );
-    col.push(f32::INFINITY);
-    out.clear();
-    out.extend(col.windows(3).map(|t| match t {
-        [a, b, c] => a.min(*b).min(*c),
-        _ => f32::INFINITY,
-    }));
-}
-
 /// One slice of rows of a depth image and what is needed to turn its pixels into map
 /// points.
 pub(crate) struct DepthSlice<'a, M: ?Sized> {
@@ -367,43 +339,146 @@ pub(crate) struct DepthSlice<'a, M: ?Sized> {
     pub(crate) model: &'a M,
 }
 
+/// A row's view of each pixel's neighbourhood in the depth image, the inputs of the edge
+/// filter ([`DepthSlice::is_edge`]) and of the smoothness test: the nearest non-zero depth
+/// (m) one and two pixels around (the 3 x 3 and 5 x 5 neighbourhoods, the pixel included,
+/// clipped at the image's borders; infinity where there is none, and everywhere without
+/// an edge filter) and, on request, the span (largest minus smallest, m) of the non-zero
+/// depths of the 5 x 5 neighbourhood (0 with one depth; infinity when not asked for).
+/// Missing returns (0, NaN, infinities) are left out: a hole is no jump.
+#[derive(Debug, Default)]
+pub(crate) struct Neighbourhood {
+    /// Nearest depth within one pixel.
+    pub(crate) near1: Vec<f32>,
+    /// Nearest depth within two pixels.
+    pub(crate) near2: Vec<f32>,
+    /// Span of the depths within two pixels.
+    pub(crate) span2: Vec<f32>,
+    /// Scratch: per column, the minimum over the three middle rows, the minimum and the
+    /// maximum over all five, each padded with two neutral values at both ends.
+    cols: [Vec<f32>; 3],
+}
+
+impl Neighbourhood {
+    /// Fills the fields for row `v` of `depth` (`span` on request) in one pass over its five
+    /// rows, branch-free so that it vectorises.
+    fn fill(&mut self, depth: &DepthImage, v: usize, span: bool) {
+        const R: usize = 2;
+        let (w, h) = (depth.width() as usize, depth.height() as usize);
+        let px = depth.as_slice();
+        let [min3, min5, max5] = &mut self.cols;
+        min3.clear();
+        min3.resize(w + 2 * R, f32::INFINITY);
+        min5.clear();
+        min5.resize(w + 2 * R, f32::INFINITY);
+        max5.clear();
+        max5.resize(w + 2 * R, 0.0);
+        for y in v.saturating_sub(R)..(v + R + 1).min(h) {
+            let Some(row) = px.get(y * w..(y + 1) * w) else {
+                continue;
+            };
+            let middle = y + 1 >= v && y <= v + 1;
+            let lo = if middle { &mut *min3 } else { &mut *min5 };
+            for (m, &d) in lo.iter_mut().skip(R).zip(row) {
+                let ok = (d > 0.0) & (d < f32::INFINITY);
+                *m = m.min(if ok { d } else { f32::INFINITY });
+            }
+            if span {
+                for (m, &d) in max5.iter_mut().skip(R).zip(row) {
+                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    *m = m.max(if ok { d } else { 0.0 });
+                }
+            }
+        }
+        for (a, &b) in min5.iter_mut().zip(min3.iter()) {
+            *a = a.min(b);
+        }
+        // Windows of three (around the middle of five) and of five columns, one shifted
+        // slice at a time.
+        window_fold(&mut self.near1, min3, 1..4, w, f32::min);
+        window_fold(&mut self.near2, min5, 0..5, w, f32::min);
+        if span {
+            window_fold(&mut self.span2, max5, 0..5, w, f32::max);
+            for (s, &lo) in self.span2.iter_mut().zip(&self.near2) {
+                *s = (*s - lo).max(0.0);
+            }
+        } else {
+            self.span2.clear();
+            self.span2.resize(w, f32::INFINITY);
+        }
+    }
+
+    /// Infinity everywhere (no edge filter): `w` pixels.
+    fn none(&mut self, w: usize) {
+        for f in [&mut self.near1, &mut self.near2, &mut self.span2] {
+            f.clear();
+            f.resize(w, f32::INFINITY);
+        }
+    }
+}
+
+/// `out[i] = pick` over `padded[i + k]` for `k` in `ks`, for `i` below `w`: each pass an
+/// element-wise `pick` of two slices, which vectorises.
+fn window_fold(
+    out: &mut Vec<f32>,
+    padded: &[f32],
+    mut ks: std::ops::Range<usize>,
+    w: usize,
+    pick: fn(f32, f32) -> f32,
+) {
+    out.clear();
+    let first = ks.next().unwrap_or(0);
+    out.extend_from_slice(padded.get(first..first + w).unwrap_or(&[]));
+    out.resize(w, f32::INFINITY);
+    for k in ks {
+        for (o, &c) in out.iter_mut().zip(padded.get(k..).unwrap_or(&[])) {
+            *o = pick(*o, c);
+        }
+    }
+}
+
 impl<'a, M: ?Sized> DepthSlice<'a, M> {
-    /// Row `v`'s depths (m; `None` past the image), with its rays in `rays` and, when the
-    /// edge filter is on, each pixel's nearest non-zero depth of its 3 x 3 neighbourhood in
-    /// `nearest` (infinity otherwise), `scratch` being scratch.
+    /// Row `v`'s depths (m; `None` past the image), with its rays in `rays` and its
+    /// [`Neighbourhood`] in `nb` (the span when `span` asks for it and there is an edge
+    /// filter: smoothness needs the filter's notion of a jump).
     pub(crate) fn row_inputs(
         &self,
         v: usize,
         rays: &mut Vec<(f64, f64)>,
-        scratch: &mut Vec<f32>,
-        nearest: &mut Vec<f32>,
+        nb: &mut Neighbourhood,
+        span: bool,
     ) -> Option<&'a [f32]> {
         let w = (self.depth.width() as usize).max(1);
         let drow = self.depth.as_slice().get(v * w..(v + 1) * w)?;
         self.rays.row(v, w, rays);
         if self.edge.is_some() {
-            nearest_neighbour_row(self.depth, v, scratch, nearest);
+            nb.fill(self.depth, v, span);
         } else {
-            nearest.clear();
+            nb.none(drow.len());
         }
-        nearest.resize(drow.len(), f32::INFINITY);
         Some(drow)
     }
 
     /// The edge filter's test: true when depth `d` (m) lies farther than
-    /// [`EdgeFilter::threshold_m`] beyond `near`, its nearest neighbour (never without a
-    /// filter).
+    /// [`EdgeFilter::threshold_m`] beyond `near1`, the nearest depth within one pixel, or
+    /// than [`EdgeFilter::threshold_apart_m`] for two pixels beyond `near2`, the nearest
+    /// within two (never without a filter).
     #[inline]
-    pub(crate) fn is_edge(&self, d: f64, near: f32) -> bool
+    pub(crate) fn is_edge(&self, d: f64, near1: f32, near2: f32) -> bool
     where
         M: HeightModel,
     {
         let f_px = self.camera.fx();
         self.edge.is_some_and(|e| {
-            // The cheap bound first: the noise term is only needed near a jump.
-            let gap = d - f64::from(near);
-            gap > e.threshold_m(d, f_px, 0.0)
-                && gap > e.threshold_m(d, f_px, self.model.depth_sigma_m(d))
+            // The cheap bounds first: the noise term is only needed near a jump.
+            let (gap1, gap2) = (d - f64::from(near1), d - f64::from(near2));
+            let jump = gap1 > e.threshold_apart_m(1.0, d, f_px, 0.0)
+                || gap2 > e.threshold_apart_m(2.0, d, f_px, 0.0);
+            jump && {
+                let sigma = self.model.depth_sigma_m(d);
+                gap1 > e.threshold_apart_m(1.0, d, f_px, sigma)
+                    || gap2 > e.threshold_apart_m(2.0, d, f_px, sigma)
+            }
         })
     }
 }
@@ -452,20 +527,27 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
     s: DepthSlice<'_, M>,
     mut sink: S,
 ) {
-    let (mut scratch, mut nearest, mut pts) = (Vec::new(), Vec::new(), Vec::<RowPoint>::new());
+    let (mut nearest, mut pts) = (Neighbourhood::default(), Vec::<RowPoint>::new());
     let pl = s.place;
     let (lo, hi) = pl.range;
     let rot = pl.rot;
     let t = pl.trans;
-    let is_edge = |d: f64, near: f32| s.is_edge(d, near);
+    let is_edge = |d: f64, (near1, near2): (f32, f32)| s.is_edge(d, near1, near2);
     let mut rrow = Vec::new();
     for v in s.rows.clone() {
-        let Some(drow) = s.row_inputs(v, &mut rrow, &mut scratch, &mut nearest) else {
+        let Some(drow) = s.row_inputs(v, &mut rrow, &mut nearest, false) else {
             continue;
         };
+        let near = || {
+            nearest
+                .near1
+                .iter()
+                .copied()
+                .zip(nearest.near2.iter().copied())
+        };
         pts.clear();
-        pts.extend(drow.iter().zip(&rrow).zip(&nearest).enumerate().map(
-            |(u, ((&d, &(xn, yn)), &near))| {
+        pts.extend(drow.iter().zip(&rrow).zip(near()).enumerate().map(
+            |(u, ((&d, &(xn, yn)), near))| {
                 let d = f64::from(d);
                 let p = nalgebra::Vector3::new(xn * d, yn * d, d);
                 let q = rot * p + t;
@@ -496,7 +578,7 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                 }
             },
         ));
-        for ((p, &d), &near) in pts.iter().zip(drow).zip(&nearest) {
+        for ((p, &d), near) in pts.iter().zip(drow).zip(near()) {
             if p.ok {
                 sink(Ok(HeightSample {
                     x: p.x,

@@ -2,7 +2,7 @@
 //! into map-frame cells, heights and variances in f32 by short loops without branches, then
 //! scattered into the band lists of [`crate::binned::Binned`].
 
-use crate::binned::{CellPoint, DepthSlice, VAR_MAX_M2, VAR_MIN_M2};
+use crate::binned::{CellPoint, DepthSlice, Neighbourhood, VAR_MAX_M2, VAR_MIN_M2};
 use crate::input::{HeightModel, Reason, Rejections, VarianceConsts};
 use crate::window::{centrality, CellBinner};
 
@@ -12,11 +12,6 @@ const INSIDE: u32 = 2;
 const MAYBE_EDGE: u32 = 4;
 /// No depth jump in the pixel's neighbourhood ([`CellPoint::smooth`]).
 const SMOOTH: u32 = 8;
-/// Radius (px) of the neighbourhood of the smoothness test: 5 x 5, so that a jump across a
-/// missing pixel (edges often drop returns beside mixed pixels) is still seen.
-const SMOOTH_RADIUS_PX: usize = 2;
-// `depth_span_row` takes its interior from `window5`, five values wide.
-const _: () = assert!(SMOOTH_RADIUS_PX == 2);
 /// The smoothness test allows the depths of the neighbourhood to span this many times the
 /// edge filter's one-pixel jump (`d / (f tan min_grazing)`), plus its noise allowance: over
 /// the 4 px across the neighbourhood, a surface seen at about 21 deg or more from the
@@ -95,21 +90,13 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
     // The edge filter's noise allowance per metre of depth standard deviation.
     let edge_noise = s.edge.map_or(0.0, |e| e.threshold_m(0.0, f_px, 1.0) as f32);
-    let (mut rays, mut scratch, mut nearest) = (Vec::new(), Vec::new(), Vec::new());
-    let (mut span, mut span_cols) = (Vec::new(), (Vec::new(), Vec::new()));
+    let (mut rays, mut nb) = (Vec::new(), Neighbourhood::default());
     let mut kept: Vec<u32> = Vec::new();
     let mut r = FlatRow::default();
     for v in s.rows.clone() {
-        let Some(drow) = s.row_inputs(v, &mut rays, &mut scratch, &mut nearest) else {
+        let Some(drow) = s.row_inputs(v, &mut rays, &mut nb, smooth) else {
             continue;
         };
-        // Smoothness needs the edge filter's notion of a jump.
-        if let (true, Some(_)) = (smooth, s.edge) {
-            depth_span_row(s.depth, v, &mut span_cols, &mut span);
-        } else {
-            span.clear();
-        }
-        span.resize(drow.len(), f32::INFINITY);
         // Buffers sized once per slice; every entry up to `n` is written below.
         let len = drow.len();
         for buf in [
@@ -126,12 +113,17 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             buf.resize(len, 0.0);
         }
         r.flags.resize(len, 0);
-        let n = len.min(rays.len()).min(nearest.len()).min(span.len());
+        let n = len
+            .min(rays.len())
+            .min(nb.near1.len())
+            .min(nb.near2.len())
+            .min(nb.span2.len());
         for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
             (*x, *y) = (rx as f32, ry as f32);
         }
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
-        let (xs, ys, near, spans) = (&r.xn[..n], &r.yn[..n], &nearest[..n], &span[..n]);
+        let (xs, ys) = (&r.xn[..n], &r.yn[..n]);
+        let (near1, near2, spans) = (&nb.near1[..n], &nb.near2[..n], &nb.span2[..n]);
         let (zs, vars, rows, cols, flags) = (
             &mut r.z[..n],
             &mut r.var[..n],
@@ -158,7 +150,8 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             let (cf, rf) = (cols[i], rows[i]);
             let valid = (d >= lo) & (d <= hi) & (var > 0.0) & (var < f32::INFINITY);
             let inside = (cf >= 0.0) & (cf < nf) & (rf >= 0.0) & (rf < nf);
-            let maybe_edge = d - near[i] > edge_slope * d;
+            let maybe_edge =
+                (d - near1[i] > edge_slope * d) | (d - near2[i] > 2.0 * edge_slope * d);
             (cells[i], bands[i]) = binner.storage_f32(rf, cf);
             flags[i] = u32::from(valid) * VALID
                 + u32::from(inside) * INSIDE
@@ -183,9 +176,9 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         // counted, and the indices of the kept pixels collected (a loop with few live
         // values; the scatter below then reads the kept pixels' values by index).
         kept.clear();
-        for (u, (&f, (&d, &near))) in r.flags[..n]
+        for (u, (&f, (&d, (&n1, &n2)))) in r.flags[..n]
             .iter()
-            .zip(drow.iter().zip(&nearest))
+            .zip(drow.iter().zip(near1.iter().zip(near2)))
             .enumerate()
         {
             let f = f & !SMOOTH;
@@ -200,7 +193,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                         .unwrap_or(Reason::BadVariance),
                 );
                 false
-            } else if f & MAYBE_EDGE != 0 && s.is_edge(f64::from(d), near) {
+            } else if f & MAYBE_EDGE != 0 && s.is_edge(f64::from(d), n1, n2) {
                 rej.depth_edge += 1;
                 false
             } else if f & INSIDE == 0 {
@@ -238,65 +231,4 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             }
         }
     }
-}
-
-/// Fills `out` with, for each pixel of row `v`, the span (largest minus smallest, m) of the
-/// non-zero depths in its (2 [`SMOOTH_RADIUS_PX`] + 1)-square neighbourhood, clipped at the
-/// image's borders (0 when only one depth is there). Missing returns are left out: a hole
-/// is no jump, and the grazing terrain that drops scattered returns stays smooth; a jump
-/// across a hole is still seen from either side. `cols` is scratch (the per-column minimum
-/// and maximum over the rows, padded at both ends).
-fn depth_span_row(
-    depth: &stride_core::image::DepthImage,
-    v: usize,
-    (col_min, col_max): &mut (Vec<f32>, Vec<f32>),
-    out: &mut Vec<f32>,
-) {
-    let (w, h) = (depth.width() as usize, depth.height() as usize);
-    let px = depth.as_slice();
-    let r = SMOOTH_RADIUS_PX;
-    // Padded with `r` neutral values on each side, so that every pixel's window is five
-    // columns wide, borders included.
-    col_min.clear();
-    col_min.resize(w + 2 * r, f32::INFINITY);
-    col_max.clear();
-    col_max.resize(w + 2 * r, 0.0);
-    for y in v.saturating_sub(r)..(v + r + 1).min(h) {
-        let Some(row) = px.get(y * w..(y + 1) * w) else {
-            continue;
-        };
-        // Branch-free, so that it vectorises; NaN and infinities count as missing.
-        for ((lo, hi), &d) in col_min
-            .iter_mut()
-            .skip(r)
-            .zip(col_max.iter_mut().skip(r))
-            .zip(row)
-        {
-            let ok = (d > 0.0) & (d < f32::INFINITY);
-            *lo = lo.min(if ok { d } else { f32::INFINITY });
-            *hi = hi.max(if ok { d } else { 0.0 });
-        }
-    }
-    out.clear();
-    out.extend(
-        window5(col_min, f32::min)
-            .zip(window5(col_max, f32::max))
-            .map(|(lo, hi)| (hi - lo).max(0.0)),
-    );
-}
-
-/// `pick` (min or max) over each window of five consecutive values of `s`, in order
-/// (`s.len() - 4` values): the zip of five shifted slices, which the compiler vectorises.
-fn window5<'a>(
-    s: &'a [f32],
-    pick: impl Fn(f32, f32) -> f32 + Copy + 'a,
-) -> impl Iterator<Item = f32> + 'a {
-    let from = |k: usize| s.get(k..).unwrap_or(&[]);
-    from(0)
-        .iter()
-        .zip(from(1))
-        .zip(from(2))
-        .zip(from(3))
-        .zip(from(4))
-        .map(move |((((a, b), c), d), e)| pick(pick(pick(pick(*a, *b), *c), *d), *e))
 }

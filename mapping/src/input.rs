@@ -151,12 +151,14 @@ pub struct VarianceConsts {
 
 /// A front-end filter of depth images against flying pixels (returns between a foreground
 /// edge and the background behind it, which hang in the air in the foreground's shadow
-/// where no later view can contradict them). A pixel is dropped when one of its 8
-/// neighbours is nearer by more than `tau(d) = d / (f tan(min_grazing)) + k sqrt(2)
-/// sigma_d(d)`: more than a surface seen at the shallowest accepted angle can change from
-/// one pixel to the next, plus `k` standard deviations of the difference of two
-/// measurements. It also drops the background pixels that touch a foreground edge, which
-/// costs one pixel of background along each edge.
+/// where no later view can contradict them). A pixel is dropped when a pixel `n` = 1 or 2
+/// pixels away (its 5 x 5 neighbourhood) is nearer by more than `tau_n(d) = n d / (f
+/// tan(min_grazing)) + k sqrt(2) sigma_d(d)`: more than a surface seen at the shallowest
+/// accepted angle can change over `n` pixels, plus `k` standard deviations of the difference
+/// of two measurements. The second ring catches the mixed pixel whose foreground partner
+/// across the edge returned nothing (sensors often drop returns beside mixed ones), which a
+/// test of the 8 neighbours alone lets through. It also drops the background pixels within
+/// two pixels of a foreground edge, which costs two pixels of background along each edge.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EdgeFilter {
@@ -193,10 +195,16 @@ impl Default for EdgeFilter {
 }
 
 impl EdgeFilter {
-    /// The jump (m) above which a nearer neighbour marks a pixel of depth `d` (m) as an
-    /// edge, for focal length `f_px` and depth standard deviation `sigma_d` (m).
+    /// The jump (m) above which a nearer neighbour (one pixel away) marks a pixel of depth
+    /// `d` (m) as an edge, for focal length `f_px` and depth standard deviation `sigma_d`
+    /// (m): `tau_1(d)`.
     pub fn threshold_m(&self, d: f64, f_px: f64, sigma_d: f64) -> f64 {
-        d / (f_px.max(1.0) * self.min_grazing_rad.tan().max(1e-3))
+        self.threshold_apart_m(1.0, d, f_px, sigma_d)
+    }
+
+    /// As [`EdgeFilter::threshold_m`] for a nearer pixel `n_px` pixels away: `tau_n(d)`.
+    pub fn threshold_apart_m(&self, n_px: f64, d: f64, f_px: f64, sigma_d: f64) -> f64 {
+        n_px * d / (f_px.max(1.0) * self.min_grazing_rad.tan().max(1e-3))
             + self.sigmas * std::f64::consts::SQRT_2 * sigma_d
     }
 }

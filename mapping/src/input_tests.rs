@@ -222,7 +222,8 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
 /// A pixel is smooth when its 5 x 5 neighbourhood (missing returns left out) spans no depth
 /// jump: on two fronto-parallel planes (1.0 m left, 1.5 m right) with one hole, exactly the
 /// kept pixels within two columns of the jump are not (the jump's far side is dropped by the
-/// edge filter; the hole changes nothing); without the request, no point is smooth.
+/// edge filter, two columns deep; the hole changes nothing); without the request, no point
+/// is smooth.
 #[test]
 fn points_from_pixels_near_a_depth_jump_are_not_smooth() {
     use crate::window::Window;
@@ -258,12 +259,48 @@ fn points_from_pixels_near_a_depth_jump_are_not_smooth() {
         (rej, all.len(), all.iter().filter(|p| p.smooth()).count())
     };
     let (rej, kept, smooth) = count(true);
+    // The jump's far side loses its two columns nearest the jump (32 and 33) to the edge
+    // filter's two rings.
     assert_eq!(
         (rej.outside_window, rej.depth_edge, rej.no_return),
-        (0, 48, 1)
+        (0, 2 * 48, 1)
     );
-    assert_eq!(kept, 64 * 48 - 48 - 1);
-    // Columns 30 and 31 (near side) and 33 (far side; 32 is dropped), 48 pixels each.
-    assert_eq!(kept - smooth, 3 * 48);
+    assert_eq!(kept, 64 * 48 - 2 * 48 - 1);
+    // Columns 30 and 31 (near side), 48 pixels each.
+    assert_eq!(kept - smooth, 2 * 48);
     assert_eq!(count(false).2, 0);
+}
+
+/// A mixed ("flying") pixel whose foreground partner across the edge returned nothing has no
+/// nearer neighbour within one pixel, only within two: the edge filter's second ring drops
+/// it. Foreground at 1 m (columns 0-30), a dropped column (31), the mixed pixel at 2 m (32),
+/// background at 3 m (33 on); the first ring alone keeps it.
+#[test]
+fn a_mixed_pixel_beside_a_dropped_return_is_an_edge() {
+    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let mut depth = DepthImage::filled(64, 48, 1.0);
+    for v in 0..48u32 {
+        for u in 31..64u32 {
+            let d = match u {
+                31 => 0.0,
+                32 => 2.0,
+                _ => 3.0,
+            };
+            *depth.get_mut(u, v).unwrap() = d;
+        }
+    }
+    // Identity pose: a point's map z is its depth.
+    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
+    let (pts, rej) = filtered_map_points(
+        &frame,
+        &PrimeSenseHeight::default(),
+        Some(&EdgeFilter::default()),
+    );
+    assert!(
+        pts.iter().all(|p| (p.z - 2.0).abs() > 0.5),
+        "the mixed pixel was kept"
+    );
+    // Columns 32 (mixed), 33 (beside it) and 34 (two pixels from it) go.
+    assert_eq!((rej.depth_edge, rej.no_return), (3 * 48, 48));
+    assert_eq!(pts.len(), 64 * 48 - 4 * 48);
 }
