@@ -25,6 +25,9 @@ pub struct MapperRun {
     pub update_s: Vec<f64>,
     /// Points used.
     pub points_used: usize,
+    /// Points dropped because their column had too many distinct voxels in one frame
+    /// ([`stride_mapping::UpdateStats::points_overflow`]).
+    pub points_overflow: usize,
     /// Dropped measurements.
     pub rejected: Rejections,
     /// Columns cleared by the visibility check.
@@ -88,9 +91,9 @@ pub fn map_sequence(
 ) -> Result<(Vec<MapperRun>, FrameCounts), PipelineError> {
     let stream = seq.stream(max_frames, 4);
     let mut counts = FrameCounts::default();
-    let mut stats: Vec<(Vec<f64>, usize, Rejections, usize)> = mappers
+    let mut stats: Vec<(Vec<f64>, [usize; 2], Rejections, usize)> = mappers
         .iter()
-        .map(|_| (Vec::new(), 0, Rejections::default(), 0))
+        .map(|_| (Vec::new(), [0, 0], Rejections::default(), 0))
         .collect();
     for item in stream {
         counts.frames += 1;
@@ -114,13 +117,16 @@ pub fn map_sequence(
         for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
             let u = m.integrate(&sf);
             s.0.push(u.update_s);
-            s.1 += u.points_used;
+            s.1[0] += u.points_used;
+            s.1[1] += u.points_overflow;
             s.2.add(&u.rejected);
             s.3 += u.cells_cleared;
         }
     }
     let mut runs = Vec::new();
-    for (m, (update_s, points_used, rejected, cells_cleared)) in mappers.iter().zip(stats) {
+    for (m, (update_s, [points_used, points_overflow], rejected, cells_cleared)) in
+        mappers.iter().zip(stats)
+    {
         // The mapper's own post-processing (the stack map's median fill; none for the
         // baseline).
         let (layers, median) = m.finished();
@@ -132,6 +138,7 @@ pub fn map_sequence(
             layers,
             update_s,
             points_used,
+            points_overflow,
             rejected,
             cells_cleared,
             median,

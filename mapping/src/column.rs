@@ -6,7 +6,16 @@
 use crate::stack::StackConfig;
 
 pub(crate) const MAX_VOXELS: usize = 6;
-pub(crate) const MAX_ACC: usize = 3;
+/// Distinct voxels whose accumulators a column holds in its own [`Accs`] (one cache line).
+pub(crate) const FAST_ACC: usize = 3;
+/// Distinct voxels one column can accumulate in one frame (64 cm of 2 cm voxels within one
+/// cell): beyond [`FAST_ACC`] its accumulators move to its band's spill pool, so that a
+/// column measured over many voxels (a vertical surface) keeps every measurement; beyond
+/// this, measurements are dropped and counted (`UpdateStats::points_overflow`).
+pub(crate) const MAX_ACC: usize = 32;
+
+/// The accumulators of a column that spilled out of its [`Accs`], in a band's pool.
+pub(crate) type Spilled = [Acc; MAX_ACC];
 
 /// One voxel of a column: its index (height band `[idx, idx + 1) * voxel_height`), height
 /// filter state (m, m²) and the frame that last updated it.
@@ -40,9 +49,28 @@ pub(crate) struct Stack {
     pub(crate) voxels: [Voxel; MAX_VOXELS],
 }
 
-/// This frame's accumulators of a column (a compact array of their own: the per-point pass
-/// touches only these and the cells).
-pub(crate) type Accs = [Acc; MAX_ACC];
+/// This frame's accumulators of a column (a compact array of their own, one cache line: the
+/// per-point pass touches only these and the cells): the first [`FAST_ACC`] distinct voxels,
+/// in the order they were measured, or, once more were measured, the index of the column's
+/// [`Spilled`] accumulators in its band's pool (which then hold all of them).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Accs {
+    fast: [Acc; FAST_ACC],
+    spill: u32,
+}
+
+impl Accs {
+    /// The first `n` accumulators (`n` = the column's distinct voxels this frame).
+    pub(crate) fn in_use<'a>(&'a self, n: usize, pool: &'a [Spilled]) -> &'a [Acc] {
+        if n <= FAST_ACC {
+            self.fast.get(..n).unwrap_or(&[])
+        } else {
+            pool.get(self.spill as usize)
+                .and_then(|s| s.get(..n))
+                .unwrap_or(&[])
+        }
+    }
+}
 
 /// A column of the map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -69,29 +97,56 @@ impl Cell {
         self.established && self.has_estimate
     }
 
-    /// Adds a measurement (height `z` m, weight `w` = 1/variance) to this frame's
-    /// accumulator of voxel `idx`. False when the column already has `MAX_ACC` distinct
-    /// voxels this frame (the measurement is dropped).
+    /// Adds a measurement (height `z_rel` m above the voxel's bottom, weight `w` =
+    /// 1/variance) to this frame's accumulator of voxel `idx`, spilling the column's
+    /// accumulators into `pool` when it gets more than [`FAST_ACC`] distinct voxels. False
+    /// when it already has [`MAX_ACC`] (the measurement is dropped).
     #[inline]
     pub(crate) fn accumulate(
         &mut self,
         acc: &mut Accs,
+        pool: &mut Vec<Spilled>,
         idx: i32,
         z_rel: f32,
         w: f32,
         (centrality, smooth): (f32, bool),
     ) -> bool {
+        let add = |a: &mut Acc| {
+            a.sw += w;
+            a.swh += w * z_rel;
+            a.sc += centrality;
+            a.smooth += u32::from(smooth);
+        };
         let n = usize::from(self.n_acc);
-        for a in acc.iter_mut().take(n) {
-            if a.idx == idx {
-                a.sw += w;
-                a.swh += w * z_rel;
-                a.sc += centrality;
-                a.smooth += u32::from(smooth);
+        // The common case: a column of few voxels, all in its own line.
+        if n <= FAST_ACC {
+            if let Some(a) = acc.fast.iter_mut().take(n).find(|a| a.idx == idx) {
+                add(a);
                 return true;
             }
+        } else if let Some(a) = pool
+            .get_mut(acc.spill as usize)
+            .and_then(|s| s.get_mut(..n))
+            .and_then(|s| s.iter_mut().find(|a| a.idx == idx))
+        {
+            add(a);
+            return true;
         }
-        match acc.get_mut(n) {
+        let slot = if n < FAST_ACC {
+            acc.fast.get_mut(n)
+        } else if n == FAST_ACC {
+            // Spill: the column's accumulators move to the pool, in the same order.
+            let mut spilled = [Acc::default(); MAX_ACC];
+            for (s, a) in spilled.iter_mut().zip(&acc.fast) {
+                *s = *a;
+            }
+            acc.spill = pool.len() as u32;
+            pool.push(spilled);
+            pool.last_mut().and_then(|s| s.get_mut(n))
+        } else {
+            pool.get_mut(acc.spill as usize).and_then(|s| s.get_mut(n))
+        };
+        match slot {
             Some(a) => {
                 *a = Acc {
                     idx,
@@ -112,13 +167,13 @@ impl Cell {
     pub(crate) fn apply(
         &mut self,
         st: &mut Stack,
-        acc: &Accs,
+        acc: &[Acc],
         frame_no: u32,
         voxel_h: f32,
         cfg: &StackConfig,
     ) {
         let mut highest: Option<(f32, f32, i32, u32)> = None;
-        let accs = acc.iter().take(usize::from(self.n_acc));
+        let accs = acc.iter();
         // The voxels that may feed the cell filter: those with enough of the column's
         // central support, or else the best supported one.
         let support: f32 = accs.clone().map(|a| a.sc).sum();
@@ -235,5 +290,51 @@ impl Cell {
                 true
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A column measured over more voxels than its own accumulators hold keeps every
+    /// measurement: the voxel measured last but most (a floor after a wall's face, in pixel
+    /// order) still feeds the cell filter. Three single points on a wall's face at voxels
+    /// 10-12 come first, then six on the floor at voxel 2.
+    #[test]
+    fn a_column_measured_over_many_voxels_keeps_every_measurement() {
+        let cfg = StackConfig::default();
+        let voxel_h = cfg.voxel_height_m as f32;
+        let (mut c, mut st, mut acc, mut pool) = (
+            Cell::default(),
+            Stack::default(),
+            Accs::default(),
+            Vec::new(),
+        );
+        let mut add =
+            |idx: i32| c.accumulate(&mut acc, &mut pool, idx, 0.5 * voxel_h, 1e4, (1.0, true));
+        for idx in [10, 11, 12] {
+            assert!(add(idx));
+        }
+        for _ in 0..6 {
+            assert!(add(2));
+        }
+        assert_eq!((usize::from(c.n_acc), pool.len()), (4, 1));
+        let held = acc.in_use(usize::from(c.n_acc), &pool);
+        assert_eq!(
+            held.iter().map(|a| a.idx).collect::<Vec<_>>(),
+            [10, 11, 12, 2]
+        );
+        c.apply(&mut st, held, 1, voxel_h, &cfg);
+        assert!(c.mapped());
+        assert!((c.h - 2.5 * voxel_h).abs() < 1e-6, "fed {} m", c.h);
+        // Up to MAX_ACC distinct voxels a frame, then measurements are refused.
+        let mut c = Cell::default();
+        let (mut acc, mut pool) = (Accs::default(), Vec::new());
+        for idx in 0..MAX_ACC as i32 {
+            assert!(c.accumulate(&mut acc, &mut pool, idx, 0.0, 1.0, (1.0, false)));
+        }
+        assert!(!c.accumulate(&mut acc, &mut pool, -1, 0.0, 1.0, (1.0, false)));
+        assert!(c.accumulate(&mut acc, &mut pool, 3, 0.0, 1.0, (1.0, false)));
     }
 }

@@ -5,7 +5,7 @@
 
 use crate::binned::Binned;
 use crate::checks::Target;
-use crate::column::{Accs, Cell, Stack};
+use crate::column::{Accs, Cell, Spilled, Stack};
 use crate::polar::Polar;
 use crate::stack::StackConfig;
 
@@ -38,6 +38,8 @@ pub(crate) struct Band<'b> {
     pub(crate) cells: &'b mut [Cell],
     pub(crate) stacks: &'b mut [Stack],
     pub(crate) accs: &'b mut [Accs],
+    /// The band's pool of spilled accumulators (emptied at each frame; its capacity kept).
+    pub(crate) spill: &'b mut Vec<Spilled>,
     /// Columns of this band not yet established, whose vitality may decay.
     pub(crate) pending: &'b mut Vec<u32>,
 }
@@ -51,10 +53,12 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             cells,
             stacks,
             accs,
+            spill,
             pending,
         } = band;
-        let (used, overflow, touched) = self.accumulate(index, first, cells, accs);
-        let targets = self.apply(first, &touched, cells, stacks, accs, pending);
+        spill.clear();
+        let (used, overflow, touched) = self.accumulate(index, first, cells, accs, spill);
+        let targets = self.apply(first, &touched, cells, stacks, (accs, spill), pending);
         self.decay(first, cells, pending);
         BandUpdate {
             used,
@@ -71,6 +75,7 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
         first: usize,
         cells: &mut [Cell],
         accs: &mut [Accs],
+        spill: &mut Vec<Spilled>,
     ) -> (usize, usize, Vec<u32>) {
         let voxel_h = self.cfg.voxel_height_m as f32;
         let inv_voxel_h = 1.0 / voxel_h;
@@ -87,6 +92,7 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             let z_rel = p.z_m - idx_f * voxel_h;
             if cell.accumulate(
                 acc,
+                spill,
                 idx_f as i32,
                 z_rel,
                 1.0 / p.var_m2,
@@ -109,7 +115,7 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
         touched: &[u32],
         cells: &mut [Cell],
         stacks: &mut [Stack],
-        accs: &[Accs],
+        (accs, spill): (&[Accs], &[Spilled]),
         pending: &mut Vec<u32>,
     ) -> Vec<Target> {
         let cfg = self.cfg;
@@ -121,7 +127,8 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             else {
                 continue;
             };
-            c.apply(st, acc, self.frame_no, cfg.voxel_height_m as f32, cfg);
+            let held = acc.in_use(usize::from(c.n_acc), spill);
+            c.apply(st, held, self.frame_no, cfg.voxel_height_m as f32, cfg);
             if !c.established && !c.pending {
                 c.pending = true;
                 pending.push(ci);

@@ -34,7 +34,7 @@
 
 use crate::archive::{Archive, Archived};
 use crate::checks::{LosTable, SeeThrough, Target};
-use crate::column::{Accs, Cell, Stack, Voxel};
+use crate::column::{Accs, Cell, Spilled, Stack, Voxel};
 use crate::error::{self, MappingError};
 use crate::fuse::{Band, BandUpdate, Fusion};
 use crate::input::{
@@ -147,6 +147,8 @@ pub struct StackMapper {
     stacks: Vec<Stack>,
     /// Per-frame accumulators, by the same storage index.
     accs: Vec<Accs>,
+    /// Per band: the accumulators of columns measured over more voxels than [`Accs`] holds.
+    spill: Vec<Vec<Spilled>>,
     archive: Archive,
     rays: RayCache,
     binned: Binned,
@@ -209,6 +211,7 @@ impl StackMapper {
             cfg,
             stacks: vec![Stack::default(); size * size],
             accs: vec![Accs::default(); size * size],
+            spill: vec![Vec::new(); BANDS],
             window,
             archive: Archive::default(),
             rays: RayCache::default(),
@@ -453,6 +456,11 @@ impl ElevationMapper for StackMapper {
         self.window.memory_bytes()
             + self.stacks.capacity() * std::mem::size_of::<Stack>()
             + self.accs.capacity() * std::mem::size_of::<Accs>()
+            + self
+                .spill
+                .iter()
+                .map(|s| s.capacity() * std::mem::size_of::<Spilled>())
+                .sum::<usize>()
             + self.archive.memory_bytes()
             + self.binned.memory_bytes()
             + self.los_table.capacity() * std::mem::size_of::<f32>()
@@ -498,15 +506,17 @@ impl ElevationMapper for StackMapper {
             .par_chunks_mut(band_cells)
             .zip(self.stacks.par_chunks_mut(band_cells))
             .zip(self.accs.par_chunks_mut(band_cells))
+            .zip(self.spill.par_iter_mut())
             .zip(self.pending.par_iter_mut())
             .enumerate()
-            .map(|(index, (((cells, stacks), accs), pending))| {
+            .map(|(index, ((((cells, stacks), accs), spill), pending))| {
                 fusion.band(Band {
                     index,
                     first: index * band_cells,
                     cells,
                     stacks,
                     accs,
+                    spill,
                     pending,
                 })
             })

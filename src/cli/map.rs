@@ -253,6 +253,7 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
         }),
     );
     m.insert("points_used".into(), json!(r.points_used));
+    m.insert("points_overflow".into(), json!(r.points_overflow));
     m.insert(
         "rejected".into(),
         serde_json::to_value(r.rejected).unwrap_or(Value::Null),

@@ -198,6 +198,7 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
         "wall_s": m.wall_s,
         "queue_wait_s": s.queue_wait_s,
         "points_used": s.points_used,
+        "points_overflow": s.points_overflow,
         "rejected": serde_json::to_value(s.rejected).unwrap_or(Value::Null),
         "alignment": {
             "aligned": s.aligned.len(),

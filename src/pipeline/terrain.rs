@@ -148,6 +148,9 @@ pub struct TerrainStats {
     pub views_unmapped: usize,
     /// Depth measurements integrated into the live map, rebuilds included.
     pub points_used: usize,
+    /// Measurements dropped because their column had too many distinct voxels in one frame
+    /// (counted the same way; [`stride_mapping::UpdateStats::points_overflow`]).
+    pub points_overflow: usize,
     /// Measurements dropped, by reason (counted the same way).
     pub rejected: Rejections,
     /// Time the frame path waited for room in the map thread's queue (s): 0 when the map
@@ -403,6 +406,7 @@ impl Terrain {
         frame.map_from_sensor = at;
         let u = self.live.integrate(&frame);
         self.stats.points_used += u.points_used;
+        self.stats.points_overflow += u.points_overflow;
         self.stats.rejected.add(&u.rejected);
         s.mapped_at = Some(world_from_camera);
         s.integrated_at = Some(at);
