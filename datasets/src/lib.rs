@@ -17,12 +17,15 @@
 //! * [`grid_file`]: the grid format (`.npy` float32 layers + a JSON header) shared by the
 //!   synthetic ground truth and the elevation mapper.
 //! * [`synth`]: the synthetic legged-robot RGB-D generator with ground truth.
+//! * [`motion_blur`]: recorded frames blurred along each pixel's image motion from their
+//!   ground truth (the real side of the blur study).
 
 pub mod accelerometer;
 pub mod camera_config;
 pub mod error;
 pub mod grid_file;
 pub mod mcap;
+pub mod motion_blur;
 pub mod orbslam_settings;
 pub mod png_io;
 pub mod scan_log;

@@ -15,6 +15,7 @@ mod run;
 mod run_files;
 mod run_report;
 mod study;
+mod study_real;
 mod synth;
 mod vocab;
 

@@ -12,6 +12,8 @@ use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
 use stride_eval::report::Report;
 use stride_output::fs::{write_atomic, StagedDir};
 
+use super::run::TopicArgs;
+use super::study_real;
 use super::synth::GaitArg;
 
 #[derive(Debug, Subcommand)]
@@ -42,9 +44,31 @@ pub struct BlurStudyArgs {
     #[arg(long, default_value_t = 150)]
     frames: usize,
     /// A quick study for CI: 320x240 images, 45 frames, one seed, the slowest and fastest
-    /// speeds (unless given).
+    /// speeds (unless given); on the real side the first 60 frames, unblurred and at 25 px
+    /// (unless given).
     #[arg(long)]
     quick: bool,
+    /// The real side: a recorded sequence with ground truth (a TUM folder or an MCAP log),
+    /// its colour frames blurred along each pixel's image motion at `--lengths`, the SLAM on
+    /// each (e.g. ../shared/data/tum/rgbd_dataset_freiburg3_teddy_200).
+    #[arg(long, value_name = "DIR|FILE.mcap")]
+    real: Option<PathBuf>,
+    /// Median blur lengths of the real side (px); 0 is the sequence as recorded.
+    #[arg(long, value_delimiter = ',', default_values_t = [0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0])]
+    lengths: Vec<f64>,
+    /// Only the real side (needs --real).
+    #[arg(long, requires = "real")]
+    real_only: bool,
+    /// Camera of the real sequence (as `stride run --camera`).
+    #[arg(long)]
+    camera: Option<String>,
+    /// Python of a throwaway venv with pyorbslam3 and evo: also run ORB-SLAM3 on the real
+    /// side's blurred frames, in this session, through ../shared/tools/peers/orbslam3_tum.py
+    /// (never a project dependency; a TUM --real folder only).
+    #[arg(long, value_name = "PYTHON", requires = "real")]
+    orbslam3: Option<PathBuf>,
+    #[command(flatten)]
+    topics: TopicArgs,
     /// Every stage's parameters as a TOML file (`stride config --print-defaults`); the map
     /// is not built.
     #[arg(long, value_name = "FILE.toml")]
@@ -63,13 +87,18 @@ pub fn run(c: StudyCommand) -> Result<()> {
 fn blur(mut a: BlurStudyArgs) -> Result<()> {
     super::check_out_dir("--out", &a.out, a.overwrite)?;
     let mut base = SynthConfig::default();
+    let mut real_frames = None;
     if a.quick {
         let full = [0.3, 0.45, 0.6, 0.8, 0.95];
         if a.speeds == full {
             a.speeds = vec![0.3, 0.95];
         }
+        if a.lengths == [0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0] {
+            a.lengths = vec![0.0, 25.0];
+        }
         a.seeds = 1;
         a.frames = a.frames.min(45);
+        real_frames = Some(60);
         base.camera = CameraConfig {
             camera: stride_core::camera::PinholeCamera::new(
                 258.65, 258.23, 159.3, 127.6, 320, 240,
@@ -83,6 +112,9 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     {
         bail!("--speeds: each must be in (0, 1] (a fraction of {MAX_SPEED_M_S} m/s)");
     }
+    if a.lengths.iter().any(|l| !(l.is_finite() && *l >= 0.0)) {
+        bail!("--lengths: each must be a blur length of 0 px or more");
+    }
     if a.seeds == 0 || a.frames < 10 {
         bail!("--seeds must be at least 1 and --frames at least 10");
     }
@@ -91,8 +123,110 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         None => stride::PipelineConfig::default(),
     };
     config.map = None;
-    let specs: Vec<RunSpec> = a
-        .gaits
+    let real = match &a.real {
+        Some(p) => Some(
+            a.topics
+                .open(p, a.camera.as_deref())
+                .with_context(|| format!("--real {}", p.display()))?,
+        ),
+        None => None,
+    };
+    if let Some(seq) = &real {
+        if seq.groundtruth().is_none() {
+            bail!(
+                "--real {}: it has no ground truth to blur and score with",
+                seq.path().display()
+            );
+        }
+    }
+    let specs: Vec<RunSpec> = if a.real_only { Vec::new() } else { specs(&a) };
+    let real_len = real.as_ref().map_or(0, |s| {
+        real_frames.map_or(s.len(), |m: usize| m.min(s.len()))
+    });
+    let bar = super::progress_bar(
+        specs.len() * a.frames + real_len * a.lengths.len(),
+        "frames",
+        !a.quiet,
+    );
+    let mut runs = Vec::with_capacity(specs.len());
+    for spec in &specs {
+        let r = stride::study::run(spec, &base, &config, || bar.inc(1))?;
+        tracing::info!(
+            "{} at {:.2} of full speed, seed {}: ATE {:.2} mm, {} of {} frames tracked, image motion {:.1} px",
+            r.gait,
+            r.speed_fraction,
+            r.seed,
+            r.ate_m * 1e3,
+            r.tracked,
+            r.frames,
+            r.image_motion_px_mean
+        );
+        runs.push(r);
+    }
+    let seeds: Vec<u64> = (1..=a.seeds).collect();
+    let (real_runs, peer_runs) = match &real {
+        Some(seq) => {
+            let camera = match &a.orbslam3 {
+                Some(_) => Some(study_real::peer_camera(seq, a.camera.as_deref())?),
+                None => None,
+            };
+            let peer = a.orbslam3.as_deref().zip(camera.as_deref());
+            study_real::runs(seq, &a.lengths, &seeds, &config, real_frames, peer, &bar)?
+        }
+        None => (Vec::new(), Vec::new()),
+    };
+    bar.finish_and_clear();
+    let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let real_name = real.as_ref().map(|s| s.path().display().to_string());
+    let json = serde_json::json!({
+        "max_speed_m_s": MAX_SPEED_M_S,
+        "frames": a.frames,
+        "image_size": [base.camera.camera.width(), base.camera.camera.height()],
+        "runs": runs,
+        "real": real_name.as_ref().map(|d| serde_json::json!({
+            "dataset": d,
+            "lengths_px": a.lengths,
+            "half_window_s": stride_datasets::motion_blur::MotionBlur::default().half_window_s,
+            "runs": real_runs,
+            "orbslam3": peer_runs.iter().map(|(l, s)| serde_json::json!({"length_px": l, "summary": s})).collect::<Vec<_>>(),
+        })),
+    });
+    write_atomic(
+        &staged.path().join("study.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
+    let rows = table(&runs, &a.speeds);
+    let real_section = real_name
+        .as_deref()
+        .map(|d| (d, a.seeds, &real_runs[..], &peer_runs));
+    report(&runs, &rows, a.frames, real_section)
+        .write(staged.path())
+        .context("writing the report")?;
+    staged
+        .publish()
+        .with_context(|| format!("publishing {}", a.out.display()))?;
+    if !runs.is_empty() {
+        crate::outln!(
+            "gait    speed  ATE mm (mean, worst)  RPE mm  tracked  lost  motion px  sharpness"
+        )?;
+        for r in &rows {
+            crate::outln!("{}", r.join("  "))?;
+        }
+    }
+    if let Some(d) = &real_name {
+        crate::outln!("{d}, blurred along its motion:")?;
+        crate::outln!("{}", study_real::columns(!peer_runs.is_empty()).join("  "))?;
+        for r in study_real::table(&real_runs, &peer_runs) {
+            crate::outln!("{}", r.join("  "))?;
+        }
+    }
+    crate::outln!("written to {}", a.out.display())?;
+    Ok(())
+}
+
+/// The synthetic runs: each gait at each speed with each seed.
+fn specs(a: &BlurStudyArgs) -> Vec<RunSpec> {
+    a.gaits
         .iter()
         .flat_map(|g| {
             let gait = match g {
@@ -109,50 +243,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
                 })
             })
         })
-        .collect();
-    let bar = super::progress_bar(specs.len() * a.frames, "frames", !a.quiet);
-    let mut runs = Vec::with_capacity(specs.len());
-    for spec in &specs {
-        let r = stride::study::run(spec, &base, &config, || bar.inc(1))?;
-        tracing::info!(
-            "{} at {:.2} of full speed, seed {}: ATE {:.2} mm, {} of {} frames tracked, image motion {:.1} px",
-            r.gait,
-            r.speed_fraction,
-            r.seed,
-            r.ate_m * 1e3,
-            r.tracked,
-            r.frames,
-            r.image_motion_px_mean
-        );
-        runs.push(r);
-    }
-    bar.finish_and_clear();
-    let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let json = serde_json::json!({
-        "max_speed_m_s": MAX_SPEED_M_S,
-        "frames": a.frames,
-        "image_size": [base.camera.camera.width(), base.camera.camera.height()],
-        "runs": runs,
-    });
-    write_atomic(
-        &staged.path().join("study.json"),
-        serde_json::to_string_pretty(&json)?.as_bytes(),
-    )?;
-    let rows = table(&runs, &a.speeds);
-    report(&runs, &rows, a.frames)
-        .write(staged.path())
-        .context("writing the report")?;
-    staged
-        .publish()
-        .with_context(|| format!("publishing {}", a.out.display()))?;
-    crate::outln!(
-        "gait    speed  ATE mm (mean, worst)  RPE mm  tracked  lost  motion px  sharpness"
-    )?;
-    for r in &rows {
-        crate::outln!("{}", r.join("  "))?;
-    }
-    crate::outln!("written to {}", a.out.display())?;
-    Ok(())
+        .collect()
 }
 
 /// Paper 004's Table 1 for our runs: per gait and speed, over the seeds.
@@ -199,8 +290,19 @@ fn phase_line(pf: &[stride::study::FrameBlur]) -> Vec<(f64, f64)> {
     out
 }
 
-/// The HTML/Markdown report: the table and the plots.
-fn report(runs: &[RunResult], rows: &[Vec<String>], frames: usize) -> Report {
+/// The HTML/Markdown report: the tables and the plots (the real side's when it ran:
+/// dataset, seeds, runs).
+fn report(
+    runs: &[RunResult],
+    rows: &[Vec<String>],
+    frames: usize,
+    real: Option<(
+        &str,
+        u64,
+        &[stride::study::real::RealRun],
+        &study_real::PeerRuns,
+    )>,
+) -> Report {
     let per_gait = |f: &dyn Fn(&RunResult) -> (f64, f64), style: Style| -> Vec<Series> {
         ["tripod", "crawl"]
             .iter()
@@ -286,55 +388,66 @@ fn report(runs: &[RunResult], rows: &[Vec<String>], frames: usize) -> Report {
         });
     }
     let mut rep = Report::new("stride study blur: gait-dependent motion blur (paper 004)");
-    rep.paragraph(format!(
-        "{} run{} of {frames} frames at 30 Hz: square walks (0.75 m sides) in the synthetic lab \
-         with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM (odometry \
-         with bundle adjustment) on each as the frames are rendered. ATE: RMSE after SE(3) \
-         alignment, RPE: over one frame (evo's definitions). A frame is tracked when the \
-         odometry estimated it (tracked or recovered); lost frames were predicted.",
-        runs.len(),
-        if runs.len() == 1 { "" } else { "s" }
-    ));
-    rep.heading("Per gait and speed, over the seeds (as paper 004's Table 1)");
-    rep.table(
-        &[
-            "gait",
-            "speed",
-            "ATE mm (mean, worst)",
-            "RPE mm",
-            "tracked",
-            "lost",
-            "image motion px",
-            "sharpness",
-        ],
-        rows.to_vec(),
-    );
-    let corr: Vec<String> = runs
-        .iter()
-        .map(|r| {
-            format!(
-                "{} {:.2} s{}: {}",
-                r.gait,
-                r.speed_fraction,
-                r.seed,
-                r.sharpness_motion_correlation
-                    .map_or("-".into(), |c| format!("{c:.2}"))
-            )
-        })
-        .collect();
-    rep.heading("Plots");
-    rep.figure(
-        "study",
-        render(&charts, 2, 560.0, 360.0),
-        "Top: ATE against speed and tracked frames against blur, per gait. Bottom: the blur of \
-         the fastest tripod run over time with its gait, and the sharpness measured from the \
-         images alone.",
-    );
-    rep.heading("Sharpness against true image motion");
-    rep.paragraph(format!(
-        "Correlation, per run, between a frame's variance of the Laplacian and its true image \
-         motion during the exposure (negative: the image-only measure sees the blur): {}.",
-        corr.join("; ")
-    ));
+    if !runs.is_empty() {
+        rep.paragraph(format!(
+            "{} run{} of {frames} frames at 30 Hz: square walks (0.75 m sides) in the synthetic \
+             lab with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM \
+             (odometry with bundle adjustment) on each as the frames are rendered. ATE: RMSE \
+             after SE(3) alignment, RPE: over one frame (evo's definitions). A frame is tracked \
+             when the odometry estimated it (tracked or recovered); lost frames were predicted.",
+            runs.len(),
+            if runs.len() == 1 { "" } else { "s" }
+        ));
+        rep.heading("Per gait and speed, over the seeds (as paper 004's Table 1)");
+        rep.table(
+            &[
+                "gait",
+                "speed",
+                "ATE mm (mean, worst)",
+                "RPE mm",
+                "tracked",
+                "lost",
+                "image motion px",
+                "sharpness",
+            ],
+            rows.to_vec(),
+        );
+        rep.heading("Plots");
+        rep.figure(
+            "study",
+            render(&charts, 2, 560.0, 360.0),
+            "Top: ATE against speed and tracked frames against blur, per gait. Bottom: the \
+             blur of the fastest tripod run over time with its gait, and the sharpness measured \
+             from the images alone.",
+        );
+        let corr: Vec<String> = runs
+            .iter()
+            .map(|r| {
+                format!(
+                    "{} {:.2} s{}: {}",
+                    r.gait,
+                    r.speed_fraction,
+                    r.seed,
+                    r.sharpness_motion_correlation
+                        .map_or("-".into(), |c| format!("{c:.2}"))
+                )
+            })
+            .collect();
+        rep.heading("Sharpness against true image motion");
+        rep.paragraph(format!(
+            "Correlation, per run, between a frame's variance of the Laplacian and its true \
+             image motion during the exposure (negative: the image-only measure sees the blur): \
+             {}.",
+            corr.join("; ")
+        ));
+    }
+    if let Some((dataset, seeds, real_runs, peer)) = real {
+        study_real::section(&mut rep, dataset, seeds, real_runs, peer);
+        rep.figure(
+            "real",
+            render(&study_real::charts(real_runs, peer), 2, 560.0, 360.0),
+            "ATE and tracked frames against the median blur length, every seed.",
+        );
+    }
     rep
 }

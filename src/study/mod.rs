@@ -7,6 +7,11 @@
 //! scored: ATE and RPE against the lab's ground truth, frames tracked and lost, and the blur
 //! of each frame, measured from the image alone (variance of the Laplacian) and from the
 //! ground truth (the largest image motion of scene points during the exposure).
+//!
+//! The real side ([`real`]): a recorded sequence blurred along each pixel's image motion at
+//! increasing lengths, scored the same way.
+
+pub mod real;
 
 use crate::pipeline::{slam_ate_options, FrameStatus, Pipeline, PipelineConfig, PipelineError};
 use stride_core::frame::RgbdFrame;
@@ -43,8 +48,14 @@ pub enum StudyError {
     /// The evaluation against ground truth failed.
     #[error("evaluation: {0}")]
     Eval(#[from] EvalError),
-    /// A rendered frame's ground-truth pose could not join the trajectory (a time out of
-    /// order).
+    /// The real side's sequence has no ground truth to blur and score with.
+    #[error("{dataset}: the blur study needs a ground truth (groundtruth.txt)")]
+    NoGroundTruth {
+        /// The sequence.
+        dataset: String,
+    },
+    /// A frame could not be made: a rendered frame's ground-truth pose could not join the
+    /// trajectory (a time out of order), or a recorded frame could not be blurred.
     #[error("frame {frame}: {message}")]
     Frame {
         /// Frame index.
