@@ -54,6 +54,7 @@ pub(crate) struct Stack {
 /// in the order they were measured, or, once more were measured, the index of the column's
 /// [`Spilled`] accumulators in its band's pool (which then hold all of them).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[repr(align(64))]
 pub(crate) struct Accs {
     fast: [Acc; FAST_ACC],
     spill: u32,
@@ -71,6 +72,9 @@ impl Accs {
         }
     }
 }
+
+// Three accumulators and the pool index fill one 64-byte line exactly.
+const _: () = assert!(std::mem::size_of::<Accs>() == 64);
 
 /// A column of the map.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
