@@ -8,6 +8,7 @@ use crate::input::{
     Cloud, DepthPixel, EdgeFilter, HeightModel, HeightSample, Placement, RayCache, Rays, Reason,
     Rejections, SensorFrame,
 };
+use crate::neighbourhood::Neighbourhood;
 use crate::window::CellBinner;
 use rayon::prelude::*;
 use stride_core::camera::PinholeCamera;
@@ -337,104 +338,6 @@ pub(crate) struct DepthSlice<'a, M: ?Sized> {
     pub(crate) edge: Option<&'a EdgeFilter>,
     pub(crate) place: &'a Placement,
     pub(crate) model: &'a M,
-}
-
-/// A row's view of each pixel's neighbourhood in the depth image, the inputs of the edge
-/// filter ([`DepthSlice::is_edge`]) and of the smoothness test: the nearest non-zero depth
-/// (m) one and two pixels around (the 3 x 3 and 5 x 5 neighbourhoods, the pixel included,
-/// clipped at the image's borders; infinity where there is none, and everywhere without
-/// an edge filter) and, on request, the span (largest minus smallest, m) of the non-zero
-/// depths of the 5 x 5 neighbourhood (0 with one depth; infinity when not asked for).
-/// Missing returns (0, NaN, infinities) are left out: a hole is no jump.
-#[derive(Debug, Default)]
-pub(crate) struct Neighbourhood {
-    /// Nearest depth within one pixel.
-    pub(crate) near1: Vec<f32>,
-    /// Nearest depth within two pixels.
-    pub(crate) near2: Vec<f32>,
-    /// Span of the depths within two pixels.
-    pub(crate) span2: Vec<f32>,
-    /// Scratch: per column, the minimum over the three middle rows, the minimum and the
-    /// maximum over all five, each padded with two neutral values at both ends.
-    cols: [Vec<f32>; 3],
-}
-
-impl Neighbourhood {
-    /// Fills the fields for row `v` of `depth` (`span` on request) in one pass over its five
-    /// rows, branch-free so that it vectorises.
-    fn fill(&mut self, depth: &DepthImage, v: usize, span: bool) {
-        const R: usize = 2;
-        let (w, h) = (depth.width() as usize, depth.height() as usize);
-        let px = depth.as_slice();
-        let [min3, min5, max5] = &mut self.cols;
-        min3.clear();
-        min3.resize(w + 2 * R, f32::INFINITY);
-        min5.clear();
-        min5.resize(w + 2 * R, f32::INFINITY);
-        max5.clear();
-        max5.resize(w + 2 * R, 0.0);
-        for y in v.saturating_sub(R)..(v + R + 1).min(h) {
-            let Some(row) = px.get(y * w..(y + 1) * w) else {
-                continue;
-            };
-            let middle = y + 1 >= v && y <= v + 1;
-            let lo = if middle { &mut *min3 } else { &mut *min5 };
-            for (m, &d) in lo.iter_mut().skip(R).zip(row) {
-                let ok = (d > 0.0) & (d < f32::INFINITY);
-                *m = m.min(if ok { d } else { f32::INFINITY });
-            }
-            if span {
-                for (m, &d) in max5.iter_mut().skip(R).zip(row) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
-                    *m = m.max(if ok { d } else { 0.0 });
-                }
-            }
-        }
-        for (a, &b) in min5.iter_mut().zip(min3.iter()) {
-            *a = a.min(b);
-        }
-        // Windows of three (around the middle of five) and of five columns, one shifted
-        // slice at a time.
-        window_fold(&mut self.near1, min3, 1..4, w, f32::min);
-        window_fold(&mut self.near2, min5, 0..5, w, f32::min);
-        if span {
-            window_fold(&mut self.span2, max5, 0..5, w, f32::max);
-            for (s, &lo) in self.span2.iter_mut().zip(&self.near2) {
-                *s = (*s - lo).max(0.0);
-            }
-        } else {
-            self.span2.clear();
-            self.span2.resize(w, f32::INFINITY);
-        }
-    }
-
-    /// Infinity everywhere (no edge filter): `w` pixels.
-    fn none(&mut self, w: usize) {
-        for f in [&mut self.near1, &mut self.near2, &mut self.span2] {
-            f.clear();
-            f.resize(w, f32::INFINITY);
-        }
-    }
-}
-
-/// `out[i] = pick` over `padded[i + k]` for `k` in `ks`, for `i` below `w`: each pass an
-/// element-wise `pick` of two slices, which vectorises.
-fn window_fold(
-    out: &mut Vec<f32>,
-    padded: &[f32],
-    mut ks: std::ops::Range<usize>,
-    w: usize,
-    pick: fn(f32, f32) -> f32,
-) {
-    out.clear();
-    let first = ks.next().unwrap_or(0);
-    out.extend_from_slice(padded.get(first..first + w).unwrap_or(&[]));
-    out.resize(w, f32::INFINITY);
-    for k in ks {
-        for (o, &c) in out.iter_mut().zip(padded.get(k..).unwrap_or(&[])) {
-            *o = pick(*o, c);
-        }
-    }
 }
 
 impl<'a, M: ?Sized> DepthSlice<'a, M> {

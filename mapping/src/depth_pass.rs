@@ -2,8 +2,9 @@
 //! into map-frame cells, heights and variances in f32 by short loops without branches, then
 //! scattered into the band lists of [`crate::binned::Binned`].
 
-use crate::binned::{CellPoint, DepthSlice, Neighbourhood, VAR_MAX_M2, VAR_MIN_M2};
+use crate::binned::{CellPoint, DepthSlice, VAR_MAX_M2, VAR_MIN_M2};
 use crate::input::{HeightModel, Reason, Rejections, VarianceConsts};
+use crate::neighbourhood::Neighbourhood;
 use crate::window::{centrality, CellBinner};
 
 /// Per-pixel flags of [`FlatRow`].

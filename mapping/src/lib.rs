@@ -34,6 +34,7 @@ mod fuse;
 pub mod input;
 pub mod metrics;
 pub mod naive;
+mod neighbourhood;
 mod polar;
 pub mod post;
 pub mod range2d;
