@@ -71,6 +71,17 @@ impl Accs {
                 .unwrap_or(&[])
         }
     }
+
+    /// As [`Accs::in_use`], to update them.
+    fn in_use_mut<'a>(&'a mut self, n: usize, pool: &'a mut [Spilled]) -> &'a mut [Acc] {
+        if n <= FAST_ACC {
+            self.fast.get_mut(..n).unwrap_or(&mut [])
+        } else {
+            pool.get_mut(self.spill as usize)
+                .and_then(|s| s.get_mut(..n))
+                .unwrap_or(&mut [])
+        }
+    }
 }
 
 // Three accumulators and the pool index fill one 64-byte line exactly.
@@ -122,17 +133,7 @@ impl Cell {
             a.smooth += u32::from(smooth);
         };
         let n = usize::from(self.n_acc);
-        // The common case: a column of few voxels, all in its own line.
-        if n <= FAST_ACC {
-            if let Some(a) = acc.fast.iter_mut().take(n).find(|a| a.idx == idx) {
-                add(a);
-                return true;
-            }
-        } else if let Some(a) = pool
-            .get_mut(acc.spill as usize)
-            .and_then(|s| s.get_mut(..n))
-            .and_then(|s| s.iter_mut().find(|a| a.idx == idx))
-        {
+        if let Some(a) = acc.in_use_mut(n, pool).iter_mut().find(|a| a.idx == idx) {
             add(a);
             return true;
         }
