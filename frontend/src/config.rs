@@ -119,6 +119,12 @@ pub struct VoConfig {
     /// (a saved map is still searched for the first frame).
     #[serde(with = "stride_core::serde_opt")]
     pub relocalization_keyframes: Option<usize>,
+    /// Depth alignment ([`crate::depth_align`]): a frame that tracking, recovery and
+    /// relocalization all lose (a colour image too blurred to follow) is placed by aligning
+    /// its depth image with the last keyframe's, from the constant-velocity prediction, and
+    /// marked [`crate::TrackingStatus::DepthAligned`]. Needs `recovery_keyframes` (the last
+    /// keyframe's depth is kept with them).
+    pub depth_alignment: bool,
     /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
     /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
@@ -408,6 +414,7 @@ impl Default for VoConfig {
             recovery_keyframes: Some(5),
             recovery_min_inliers: 20,
             relocalization_keyframes: Some(2000),
+            depth_alignment: true,
             rolling_shutter_s: 0.0,
             seed: 1,
         }

@@ -15,6 +15,7 @@
 //! scheduling, and nothing else is random.
 
 pub mod config;
+pub mod depth_align;
 pub mod error;
 pub mod features;
 pub mod keyframe;

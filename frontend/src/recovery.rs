@@ -13,8 +13,10 @@
 //! tracking resumes on old points instead of starting afresh at a predicted pose.
 //!
 //! When the recent keyframes cannot place the frame either, [`crate::relocalize`] looks it
-//! up among all the keyframes the run may come back to, by appearance.
+//! up among all the keyframes the run may come back to, by appearance; when that fails too,
+//! its depth is aligned with the newest keyframe's ([`crate::depth_align`]).
 
+use crate::depth_align::{align, DepthAlignParams, DepthView};
 use crate::error::FrontendError;
 use crate::features::{match_descriptors, OrbDescriptor};
 use crate::keyframe::{rotate_cov, Track, TrackPoint};
@@ -346,6 +348,57 @@ impl VisualOdometry {
             keep_best(&mut best, found.map(|(e, p)| (e, p, kf.id)));
         }
         Ok(best.map(|(e, pairs, id)| self.recovered(&query, e, &pairs, id)))
+    }
+
+    /// Places a lost frame by aligning its depth with the newest keyframe's
+    /// ([`crate::depth_align`]), starting at `world_from_pred`. `None` when depth alignment
+    /// is off, no keyframe's depth is kept, or the alignment is refused (logged). The frame
+    /// keeps no track: the keyframe it starts detects new corners.
+    pub(crate) fn align_depth(
+        &mut self,
+        frame: &RgbdFrame,
+        world_from_pred: &Isometry3<f64>,
+    ) -> Option<Recovered> {
+        if !self.config.depth_alignment {
+            return None;
+        }
+        let kf = self.recent.keyframes.back()?;
+        let c = &self.config;
+        let params = DepthAlignParams {
+            min_depth_m: c.min_depth_m,
+            max_depth_m: c.max_depth_m,
+            depth_edge_rel: c.depth_edge_rel,
+            noise: c.uncertainty,
+        };
+        let keyframe = DepthView {
+            depth_m: &kf.depth_m,
+            world_from_camera: kf.world_from_kf,
+        };
+        let current = DepthView {
+            depth_m: &frame.depth_m,
+            world_from_camera: *world_from_pred,
+        };
+        match align(&keyframe, &current, &self.camera, &params) {
+            Ok(a) => {
+                tracing::debug!(
+                    "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",
+                    frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas, a.condition
+                );
+                Some(Recovered {
+                    world_from_cur: a.world_from_cur,
+                    inliers: 0,
+                    iterations: 0,
+                    information: a.information,
+                    tracks: Vec::new(),
+                    matches: 0,
+                    matched_keyframe: kf.id,
+                })
+            }
+            Err(e) => {
+                tracing::debug!("frame {}: depth not aligned: {e}", frame.index);
+                None
+            }
+        }
     }
 
     /// The pose and the new tracks (the inliers, carrying their matched world points) of

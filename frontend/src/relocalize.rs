@@ -157,7 +157,8 @@ impl VisualOdometry {
     /// Looks for the pose of a frame that tracking lost (`lost`) or kept with only
     /// `inliers` inliers: recovery against the recent keyframes (a weak estimate is replaced
     /// only by one with twice its inliers), then, for a lost frame, relocalization among
-    /// the remembered keyframes. `None` when neither finds it.
+    /// the remembered keyframes and, failing that, depth alignment with the newest keyframe
+    /// from the predicted pose `world_from_pred`. `None` when none finds it.
     pub(crate) fn search_by_appearance(
         &mut self,
         frame: &RgbdFrame,
@@ -165,24 +166,29 @@ impl VisualOdometry {
         gray_img: &GrayImage,
         lost: bool,
         inliers: usize,
+        world_from_pred: &Isometry3<f64>,
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
         if let Some(r) = self.recover(frame, pyr, 2 * inliers)? {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
-        if !lost || self.config.relocalization_keyframes.is_none() || self.places.len() == 0 {
+        if !lost {
             return Ok(None);
         }
-        match self.relocalize(frame, pyr, gray_img) {
-            Ok(r) => Ok(Some((r, TrackingStatus::Relocalized))),
-            Err(FrontendError::NotLocalized { most_matches, .. }) => {
-                tracing::debug!(
-                    "frame {}: not relocalized ({most_matches} matches at most)",
-                    frame.index
-                );
-                Ok(None)
+        if self.config.relocalization_keyframes.is_some() && self.places.len() > 0 {
+            match self.relocalize(frame, pyr, gray_img) {
+                Ok(r) => return Ok(Some((r, TrackingStatus::Relocalized))),
+                Err(FrontendError::NotLocalized { most_matches, .. }) => {
+                    tracing::debug!(
+                        "frame {}: not relocalized ({most_matches} matches at most)",
+                        frame.index
+                    );
+                }
+                Err(e) => return Err(e),
             }
-            Err(e) => Err(e),
         }
+        Ok(self
+            .align_depth(frame, world_from_pred)
+            .map(|r| (r, TrackingStatus::DepthAligned)))
     }
 
     /// Looks for the current frame's pose among the remembered keyframes (see the module

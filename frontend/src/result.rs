@@ -18,6 +18,10 @@ pub enum TrackingStatus {
     /// Found among the keyframes the run may come back to ([`crate::relocalize`]): the
     /// first frame of a run in a saved map, or a frame that tracking and recovery lost.
     Relocalized,
+    /// Lost by the features (tracking, recovery and relocalization), placed by aligning
+    /// its depth image with the last keyframe's ([`crate::depth_align`]): the colour image
+    /// too blurred to follow, the geometry still sharp. Tracking restarts here.
+    DepthAligned,
     /// Not estimable: predicted by the constant-velocity model; tracking restarts here.
     Lost,
 }
@@ -30,6 +34,7 @@ impl TrackingStatus {
             TrackingStatus::Tracked => "tracked",
             TrackingStatus::Recovered => "recovered",
             TrackingStatus::Relocalized => "relocalized",
+            TrackingStatus::DepthAligned => "depth",
             TrackingStatus::Lost => "lost",
         }
     }

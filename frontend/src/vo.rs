@@ -18,10 +18,10 @@
 //! Because each pose is estimated against points that persist as long as they are tracked,
 //! drift only enters when new points are created. When a frame cannot be estimated (too few
 //! inliers, an implausible jump, no depth) or keeps few inliers, it is matched by appearance
-//! against recent keyframes ([`crate::recovery`], [`TrackingStatus::Recovered`]); when that
-//! fails too, its pose is predicted with the constant-velocity model and the frame is marked
-//! [`TrackingStatus::Lost`]. Either way it becomes a keyframe so that tracking resumes with
-//! the next frame. Poses are never NaN.
+//! against recent keyframes ([`crate::recovery`], [`TrackingStatus::Recovered`]), then among
+//! all remembered ones, then placed by its depth ([`crate::depth_align`]); when all fail, its
+//! pose is predicted with the constant-velocity model and it is [`TrackingStatus::Lost`].
+//! Either way it becomes a keyframe so that tracking resumes. Poses are never NaN.
 
 use crate::config::VoConfig;
 use crate::error::FrontendError;
@@ -324,7 +324,7 @@ impl VisualOdometry {
             let t_w = Instant::now();
             let lost = status == TrackingStatus::Lost;
             if let Some((r, how)) =
-                self.search_by_appearance(frame, &pyr, &gray_img, lost, inliers)?
+                self.search_by_appearance(frame, &pyr, &gray_img, lost, inliers, &world_from_pred)?
             {
                 world_from_cur = r.world_from_cur;
                 (inliers, iterations, information) = (r.inliers, r.iterations, r.information);

@@ -288,6 +288,7 @@ fn report_json(
         FrameStatus::Tracked,
         FrameStatus::Recovered,
         FrameStatus::Relocalized,
+        FrameStatus::DepthAligned,
         FrameStatus::Lost,
         FrameStatus::Skipped,
     ] {

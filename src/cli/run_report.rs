@@ -281,12 +281,17 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 )
                 .with_style(Style::Markers),
                 Series::line(
-                    "recovered/relocalized",
+                    "recovered/relocalized/depth",
                     PALETTE[3],
                     out.frames
                         .iter()
                         .filter(|f| {
-                            matches!(f.status, FrameStatus::Recovered | FrameStatus::Relocalized)
+                            matches!(
+                                f.status,
+                                FrameStatus::Recovered
+                                    | FrameStatus::Relocalized
+                                    | FrameStatus::DepthAligned
+                            )
                         })
                         .map(|f| (f.t_s - t0, f.inliers as f64))
                         .collect(),

@@ -173,7 +173,7 @@ impl Pipeline {
         }
         if let Some(t) = self.terrain.as_mut() {
             let start = Instant::now();
-            let tracked = matches!(record.status, FrameStatus::Tracked | FrameStatus::Recovered);
+            let tracked = record.status.estimated();
             if let Some((id, odometry_pose)) = self.keyframe.filter(|_| tracked) {
                 if t.wants(position, record.keyframe) {
                     let keyframe_from_camera =

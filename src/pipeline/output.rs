@@ -18,6 +18,9 @@ pub enum FrameStatus {
     /// Found by appearance among the keyframes the run may come back to: the first frame
     /// of a run in a saved map, or a frame that tracking and recovery lost.
     Relocalized,
+    /// Lost by the features, placed by aligning its depth with the last keyframe's (a
+    /// colour image too blurred to follow; the odometry's depth alignment).
+    DepthAligned,
     /// The odometry could not estimate it: predicted by constant velocity.
     Lost,
     /// The frame could not be loaded: predicted by constant velocity.
@@ -25,12 +28,19 @@ pub enum FrameStatus {
 }
 
 impl FrameStatus {
+    /// Whether the odometry estimated the pose (tracked, recovered, relocalized or depth
+    /// aligned) rather than predicting it (lost, skipped).
+    pub fn estimated(&self) -> bool {
+        !matches!(self, FrameStatus::Lost | FrameStatus::Skipped)
+    }
+
     /// A short lowercase name for reports.
     pub fn as_str(&self) -> &'static str {
         match self {
             FrameStatus::Tracked => "tracked",
             FrameStatus::Recovered => "recovered",
             FrameStatus::Relocalized => "relocalized",
+            FrameStatus::DepthAligned => "depth",
             FrameStatus::Lost => "lost",
             FrameStatus::Skipped => "skipped",
         }

@@ -206,6 +206,7 @@ impl Slam {
                 TrackingStatus::Lost => FrameStatus::Lost,
                 TrackingStatus::Recovered => FrameStatus::Recovered,
                 TrackingStatus::Relocalized => FrameStatus::Relocalized,
+                TrackingStatus::DepthAligned => FrameStatus::DepthAligned,
                 TrackingStatus::Initialized | TrackingStatus::Tracked => FrameStatus::Tracked,
             },
             keyframe: r.keyframe,
