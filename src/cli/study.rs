@@ -67,6 +67,11 @@ pub struct BlurStudyArgs {
     /// (never a project dependency; a TUM --real folder only).
     #[arg(long, value_name = "PYTHON", requires = "real")]
     orbslam3: Option<PathBuf>,
+    /// The blur mitigation: frames whose colour image the features cannot place are placed
+    /// by their depth (the odometry's `depth_alignment`). `both` runs every sequence with it
+    /// off and on and tables them side by side.
+    #[arg(long, value_enum, default_value_t = Mitigation::On)]
+    mitigation: Mitigation,
     #[command(flatten)]
     topics: TopicArgs,
     /// Every stage's parameters as a TOML file (`stride config --print-defaults`); the map
@@ -76,6 +81,28 @@ pub struct BlurStudyArgs {
     /// No progress bar.
     #[arg(short, long)]
     quiet: bool,
+}
+
+/// Which runs have the blur mitigation on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Mitigation {
+    /// Off (the odometry as it was before the mitigation).
+    Off,
+    /// On (the default configuration).
+    On,
+    /// Each sequence twice: off, then on.
+    Both,
+}
+
+impl Mitigation {
+    /// The `depth_alignment` settings to run.
+    fn settings(self) -> Vec<bool> {
+        match self {
+            Mitigation::Off => vec![false],
+            Mitigation::On => vec![true],
+            Mitigation::Both => vec![false, true],
+        }
+    }
 }
 
 pub fn run(c: StudyCommand) -> Result<()> {
@@ -143,27 +170,37 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     let real_len = real.as_ref().map_or(0, |s| {
         real_frames.map_or(s.len(), |m: usize| m.min(s.len()))
     });
+    let mitigations = a.mitigation.settings();
     let bar = super::progress_bar(
-        specs.len() * a.frames + real_len * a.lengths.len(),
+        specs.len() * mitigations.len() * a.frames + real_len * a.lengths.len(),
         "frames",
         !a.quiet,
     );
     let mut runs = Vec::with_capacity(specs.len());
-    for spec in &specs {
+    for (spec, &depth_alignment) in specs
+        .iter()
+        .flat_map(|s| mitigations.iter().map(move |m| (s, m)))
+    {
+        let mut config = config.clone();
+        config.odometry.depth_alignment = depth_alignment;
         let r = stride::study::run(spec, &base, &config, || bar.inc(1))?;
         tracing::info!(
-            "{} at {:.2} of full speed, seed {}: ATE {:.2} mm, {} of {} frames tracked, image motion {:.1} px",
+            "{} at {:.2} of full speed, seed {}, mitigation {}: ATE {:.2} mm, {} of {} frames tracked ({} by depth), image motion {:.1} px",
             r.gait,
             r.speed_fraction,
             r.seed,
+            on_off(depth_alignment),
             r.ate_m * 1e3,
             r.tracked,
             r.frames,
+            r.depth_aligned,
             r.image_motion_px_mean
         );
         runs.push(r);
     }
-    let seeds: Vec<u64> = (1..=a.seeds).collect();
+    let variants: Vec<(u64, bool)> = (1..=a.seeds)
+        .flat_map(|s| mitigations.iter().map(move |&m| (s, m)))
+        .collect();
     let (real_runs, peer_runs) = match &real {
         Some(seq) => {
             let camera = match &a.orbslam3 {
@@ -171,7 +208,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
                 None => None,
             };
             let peer = a.orbslam3.as_deref().zip(camera.as_deref());
-            study_real::runs(seq, &a.lengths, &seeds, &config, real_frames, peer, &bar)?
+            study_real::runs(seq, &a.lengths, &variants, &config, real_frames, peer, &bar)?
         }
         None => (Vec::new(), Vec::new()),
     };
@@ -195,7 +232,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         &staged.path().join("study.json"),
         serde_json::to_string_pretty(&json)?.as_bytes(),
     )?;
-    let rows = table(&runs, &a.speeds);
+    let rows = table(&runs, &a.speeds, &mitigations);
     let real_section = real_name
         .as_deref()
         .map(|d| (d, a.seeds, &real_runs[..], &peer_runs));
@@ -207,7 +244,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         .with_context(|| format!("publishing {}", a.out.display()))?;
     if !runs.is_empty() {
         crate::outln!(
-            "gait    speed  ATE mm (mean, worst)  RPE mm  tracked  lost  motion px  sharpness"
+            "gait    speed  mitigation  ATE mm (mean, worst)  RPE mm  tracked  by depth  lost  motion px  sharpness"
         )?;
         for r in &rows {
             crate::outln!("{}", r.join("  "))?;
@@ -246,34 +283,49 @@ fn specs(a: &BlurStudyArgs) -> Vec<RunSpec> {
         .collect()
 }
 
-/// Paper 004's Table 1 for our runs: per gait and speed, over the seeds.
-fn table(runs: &[RunResult], speeds: &[f64]) -> Vec<Vec<String>> {
+/// "on" or "off".
+pub(crate) fn on_off(on: bool) -> &'static str {
+    if on {
+        "on"
+    } else {
+        "off"
+    }
+}
+
+/// Paper 004's Table 1 for our runs: per gait, speed and mitigation, over the seeds.
+fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<String>> {
     let mut rows = Vec::new();
-    for gait in ["tripod", "crawl"] {
-        for &s in speeds {
-            let set: Vec<&RunResult> = runs
-                .iter()
-                .filter(|r| r.gait == gait && r.speed_fraction == s)
-                .collect();
-            if set.is_empty() {
-                continue;
-            }
-            let n = set.len() as f64;
-            let mean = |f: &dyn Fn(&RunResult) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n;
-            let worst_ate = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
-            let frames: usize = set.iter().map(|r| r.frames).sum();
-            let tracked: usize = set.iter().map(|r| r.tracked).sum();
-            rows.push(vec![
-                gait.to_owned(),
-                format!("{s:.2} ({:.3} m/s)", s * MAX_SPEED_M_S),
-                format!("{:.2}, {:.2}", mean(&|r| r.ate_m) * 1e3, worst_ate * 1e3),
-                format!("{:.2}", mean(&|r| r.rpe_m) * 1e3),
-                format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
-                format!("{}", frames - tracked),
-                format!("{:.1}", mean(&|r| r.image_motion_px_mean)),
-                format!("{:.0}", mean(&|r| r.sharpness_median)),
-            ]);
+    let cases = ["tripod", "crawl"].into_iter().flat_map(|g| {
+        speeds
+            .iter()
+            .flat_map(move |&s| mitigations.iter().map(move |&m| (g, s, m)))
+    });
+    for (gait, s, m) in cases {
+        let set: Vec<&RunResult> = runs
+            .iter()
+            .filter(|r| r.gait == gait && r.speed_fraction == s && r.depth_alignment == m)
+            .collect();
+        if set.is_empty() {
+            continue;
         }
+        let n = set.len() as f64;
+        let mean = |f: &dyn Fn(&RunResult) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n;
+        let worst_ate = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
+        let frames: usize = set.iter().map(|r| r.frames).sum();
+        let tracked: usize = set.iter().map(|r| r.tracked).sum();
+        let by_depth: usize = set.iter().map(|r| r.depth_aligned).sum();
+        rows.push(vec![
+            gait.to_owned(),
+            format!("{s:.2} ({:.3} m/s)", s * MAX_SPEED_M_S),
+            on_off(m).to_owned(),
+            format!("{:.2}, {:.2}", mean(&|r| r.ate_m) * 1e3, worst_ate * 1e3),
+            format!("{:.2}", mean(&|r| r.rpe_m) * 1e3),
+            format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
+            format!("{by_depth}"),
+            format!("{}", frames - tracked),
+            format!("{:.1}", mean(&|r| r.image_motion_px_mean)),
+            format!("{:.0}", mean(&|r| r.sharpness_median)),
+        ]);
     }
     rows
 }
@@ -303,15 +355,27 @@ fn report(
         &study_real::PeerRuns,
     )>,
 ) -> Report {
+    // One series per gait, and per mitigation setting when both ran.
+    let both = runs.iter().any(|r| r.depth_alignment) && runs.iter().any(|r| !r.depth_alignment);
     let per_gait = |f: &dyn Fn(&RunResult) -> (f64, f64), style: Style| -> Vec<Series> {
         ["tripod", "crawl"]
             .iter()
+            .flat_map(|g| [(g, false), (g, true)])
             .enumerate()
-            .filter_map(|(i, g)| {
-                let mut pts: Vec<(f64, f64)> =
-                    runs.iter().filter(|r| r.gait == *g).map(f).collect();
+            .filter_map(|(i, (g, m))| {
+                let mut pts: Vec<(f64, f64)> = runs
+                    .iter()
+                    .filter(|r| r.gait == *g && (!both || r.depth_alignment == m))
+                    .map(f)
+                    .collect();
                 pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-                (!pts.is_empty()).then(|| Series::line(*g, PALETTE[i], pts).with_style(style))
+                let name = match both {
+                    true => format!("{g}, mitigation {}", on_off(m)),
+                    false => (*g).to_owned(),
+                };
+                let colour = PALETTE.get(i).copied().unwrap_or(PALETTE[0]);
+                (!pts.is_empty() && (both || m))
+                    .then(|| Series::line(name, colour, pts).with_style(style))
             })
             .collect()
     };
@@ -394,7 +458,10 @@ fn report(
              lab with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM \
              (odometry with bundle adjustment) on each as the frames are rendered. ATE: RMSE \
              after SE(3) alignment, RPE: over one frame (evo's definitions). A frame is tracked \
-             when the odometry estimated it (tracked or recovered); lost frames were predicted.",
+             when the odometry estimated it (tracked, recovered, relocalized, or placed by its \
+             depth: the mitigation, counted apart as 'by depth'); lost frames were predicted. \
+             Mitigation: frames the features lose are placed by aligning their depth with the \
+             last keyframe's (the colour blurs, the depth does not).",
             runs.len(),
             if runs.len() == 1 { "" } else { "s" }
         ));
@@ -403,9 +470,11 @@ fn report(
             &[
                 "gait",
                 "speed",
+                "mitigation",
                 "ATE mm (mean, worst)",
                 "RPE mm",
                 "tracked",
+                "by depth",
                 "lost",
                 "image motion px",
                 "sharpness",

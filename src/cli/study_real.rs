@@ -14,13 +14,14 @@ use stride_eval::report::Report;
 /// ORB-SLAM3 on the same blurred frames: per blur length (px), the harness's summary.
 pub(crate) type PeerRuns = Vec<(f64, serde_json::Value)>;
 
-/// The real side's runs: each length (px) with each seed; with `orbslam3` (the Python of
-/// a throwaway venv with the peer), ORB-SLAM3 too, as many runs per length, on the same
+/// The real side's runs: each length (px) with each `(seed, depth_alignment)` variant; with
+/// `orbslam3` (the Python of a throwaway venv with the peer), ORB-SLAM3 too, one run per
+/// seed and length, on the same
 /// blurred frames written as a TUM folder (camera `peer_camera`: fr1, fr2 or fr3).
 pub(crate) fn runs(
     seq: &Sequence,
     lengths_px: &[f64],
-    seeds: &[u64],
+    variants: &[(u64, bool)],
     config: &PipelineConfig,
     max_frames: Option<usize>,
     orbslam3: Option<(&Path, &str)>,
@@ -38,7 +39,7 @@ pub(crate) fn runs(
             None => None,
         };
         let mut listed = Vec::new();
-        let r = run_blurred(seq, &blur, seeds, config, max_frames, |frame| {
+        let r = run_blurred(seq, &blur, variants, config, max_frames, |frame| {
             bar.inc(1);
             match (&folder, frame) {
                 (Some(dir), Some(f)) => dir.write(f, &mut listed),
@@ -48,16 +49,20 @@ pub(crate) fn runs(
         .with_context(|| format!("{} blurred to {length_px} px", seq.path().display()))?;
         for x in &r {
             tracing::info!(
-                "blur {length_px} px, seed {}: ATE {:.2} mm, {} of {} frames tracked",
+                "blur {length_px} px, seed {}, mitigation {}: ATE {:.2} mm, {} of {} frames tracked ({} by depth)",
                 x.seed,
+                super::study::on_off(x.depth_alignment),
                 x.ate_m * 1e3,
                 x.tracked,
-                x.frames
+                x.frames,
+                x.depth_aligned
             );
         }
         runs.extend(r);
         if let (Some(dir), Some((python, camera))) = (&folder, orbslam3) {
             dir.finish(&listed)?;
+            let mut seeds: Vec<u64> = variants.iter().map(|v| v.0).collect();
+            seeds.dedup();
             let summary = super::bench::orbslam3_summary(python, &dir.path, camera, seeds.len())
                 .with_context(|| format!("ORB-SLAM3 on the frames blurred to {length_px} px"))?;
             peer.push((length_px, summary));
@@ -151,29 +156,42 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
     let mut lengths: Vec<f64> = runs.iter().map(|r| r.length_px).collect();
     lengths.sort_by(f64::total_cmp);
     lengths.dedup();
-    let mean_ate = |l: f64| {
+    let mut mitigations: Vec<bool> = runs.iter().map(|r| r.depth_alignment).collect();
+    mitigations.sort();
+    mitigations.dedup();
+    let mean_ate = |l: f64, m: bool| {
         let set: Vec<f64> = runs
             .iter()
-            .filter(|r| r.length_px == l)
+            .filter(|r| r.length_px == l && r.depth_alignment == m)
             .map(|r| r.ate_m)
             .collect();
         set.iter().sum::<f64>() / set.len().max(1) as f64
     };
-    let reference = lengths.contains(&0.0).then(|| mean_ate(0.0));
+    let has_reference = lengths.contains(&0.0);
     lengths
         .iter()
-        .map(|&l| {
-            let set: Vec<&RealRun> = runs.iter().filter(|r| r.length_px == l).collect();
+        .flat_map(|&l| mitigations.iter().map(move |&m| (l, m)))
+        .map(|(l, m)| {
+            let set: Vec<&RealRun> = runs
+                .iter()
+                .filter(|r| r.length_px == l && r.depth_alignment == m)
+                .collect();
             let n = set.len().max(1) as f64;
             let worst = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
             let frames: usize = set.iter().map(|r| r.frames).sum();
             let tracked: usize = set.iter().map(|r| r.tracked).sum();
+            let by_depth: usize = set.iter().map(|r| r.depth_aligned).sum();
             let mut row = vec![
                 format!("{l:.0}"),
-                format!("{:.2}, {:.2}", mean_ate(l) * 1e3, worst * 1e3),
-                reference.map_or("-".into(), |r| format!("{:.2}", mean_ate(l) / r)),
+                super::study::on_off(m).to_owned(),
+                format!("{:.2}, {:.2}", mean_ate(l, m) * 1e3, worst * 1e3),
+                match has_reference {
+                    true => format!("{:.2}", mean_ate(l, m) / mean_ate(0.0, m)),
+                    false => "-".into(),
+                },
                 format!("{:.2}", set.iter().map(|r| r.rpe_m).sum::<f64>() / n * 1e3),
                 format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
+                format!("{by_depth}"),
                 format!("{}", frames - tracked),
                 format!(
                     "{:.0}",
@@ -206,10 +224,12 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
 pub(crate) fn columns(peer: bool) -> Vec<&'static str> {
     let mut c = vec![
         "blur px (median)",
+        "mitigation",
         "ATE mm (mean, worst)",
         "ATE / unblurred",
         "RPE mm",
         "tracked",
+        "by depth",
         "lost",
         "sharpness",
     ];
@@ -225,9 +245,25 @@ pub(crate) fn charts(runs: &[RealRun], peer: &PeerRuns) -> Vec<Chart> {
     let pts = |f: &dyn Fn(&RealRun) -> f64| -> Vec<(f64, f64)> {
         runs.iter().map(|r| (r.length_px, f(r))).collect()
     };
-    let mut ate = vec![
-        Series::line("stride", PALETTE[0], pts(&|r| r.ate_m * 1e3)).with_style(Style::Markers)
-    ];
+    let both = runs.iter().any(|r| r.depth_alignment) && runs.iter().any(|r| !r.depth_alignment);
+    let mut ate: Vec<Series> = match both {
+        false => vec![Series::line("stride", PALETTE[0], pts(&|r| r.ate_m * 1e3))],
+        true => [false, true]
+            .into_iter()
+            .map(|m| {
+                let on: Vec<(f64, f64)> = runs
+                    .iter()
+                    .filter(|r| r.depth_alignment == m)
+                    .map(|r| (r.length_px, r.ate_m * 1e3))
+                    .collect();
+                let name = format!("stride, mitigation {}", super::study::on_off(m));
+                Series::line(name, PALETTE[if m { 0 } else { 3 }], on)
+            })
+            .collect(),
+    }
+    .into_iter()
+    .map(|s| s.with_style(Style::Markers))
+    .collect();
     if !peer.is_empty() {
         let orb = peer
             .iter()
@@ -276,7 +312,9 @@ pub(crate) fn section(
         "{dataset}: every colour frame blurred along each pixel's image motion (from the \
          ground truth and the pixel's depth, over 0.1 s before and after the frame), scaled \
          so that the frame's median blur is the length given; depth as recorded. Length 0 is \
-         the sequence as recorded. The SLAM on each with {seeds} RANSAC seed{}.",
+         the sequence as recorded. The SLAM on each with {seeds} RANSAC seed{}. Mitigation \
+         on: frames the features lose are placed by aligning their depth with the last \
+         keyframe's ('by depth', counted as tracked); off: they are predicted ('lost').",
         if seeds == 1 { "" } else { "s" }
     ));
     if !peer.is_empty() {

@@ -110,6 +110,11 @@ pub struct RunResult {
     pub tracked: usize,
     /// Frames it could not estimate (predicted by constant velocity).
     pub lost: usize,
+    /// Whether the blur mitigation was on: frames the features lose placed by their depth
+    /// (the odometry's `depth_alignment`).
+    pub depth_alignment: bool,
+    /// Frames placed by depth alignment (counted in `tracked`).
+    pub depth_aligned: usize,
     /// ATE RMSE after SE(3) alignment (m), evo's definition.
     pub ate_m: f64,
     /// RPE RMSE over one frame (m, degrees), evo's definition.
@@ -168,10 +173,11 @@ pub fn run(
     })?;
     let mut config = config.clone();
     config.odometry.seed = spec.seed;
+    let depth_alignment = config.odometry.depth_alignment;
     let mut pipeline = Pipeline::new(&sc.camera, config)?;
     let renderer = synth.renderer();
     let (mut gt, mut per_frame) = (Trajectory::new(), Vec::with_capacity(spec.frames));
-    let mut t0 = None;
+    let (mut t0, mut depth_aligned) = (None, 0usize);
     for index in 0..spec.frames {
         let f = synth.render_frame(&renderer, index);
         let depth_m = depth_from_raw(&f.depth_raw, sc.camera.depth_scale);
@@ -185,6 +191,7 @@ pub fn run(
             depth_m,
         };
         let record = pipeline.process(&frame, 0.0)?;
+        depth_aligned += usize::from(record.status == FrameStatus::DepthAligned);
         gt.push(info.t_s, info.world_from_camera)
             .map_err(|e| StudyError::Frame {
                 frame: index,
@@ -197,7 +204,7 @@ pub fn run(
             stance_legs: info.stance_legs,
             image_motion_px: info.image_motion_px,
             sharpness,
-            tracked: matches!(record.status, FrameStatus::Tracked | FrameStatus::Recovered),
+            tracked: record.status.estimated(),
         });
         on_frame();
     }
@@ -216,6 +223,8 @@ pub fn run(
         frames: spec.frames,
         tracked,
         lost: spec.frames - tracked,
+        depth_alignment,
+        depth_aligned,
         ate_m: at.trans_m.rmse,
         rpe_m: rp.trans_m.rmse,
         rpe_deg: rp.rot_deg.rmse,

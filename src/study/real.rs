@@ -34,6 +34,10 @@ pub struct RealRun {
     pub lost: usize,
     /// Frames that could not be read (skipped, counted in `lost`).
     pub unreadable: usize,
+    /// Whether the blur mitigation was on (the odometry's `depth_alignment`).
+    pub depth_alignment: bool,
+    /// Frames placed by depth alignment (counted in `tracked`).
+    pub depth_aligned: usize,
     /// ATE RMSE after SE(3) alignment (m), evo's definition.
     pub ate_m: f64,
     /// RPE RMSE over one frame (m, degrees), evo's definition.
@@ -44,14 +48,15 @@ pub struct RealRun {
     pub sharpness_median: f64,
 }
 
-/// Runs the SLAM (built from `config`, its RANSAC seed replaced by each of `seeds`) on the
+/// Runs the SLAM (built from `config`, its RANSAC seed and depth alignment replaced by each
+/// of `variants`' `(seed, depth_alignment)`) on the
 /// first `max_frames` frames of `seq` (all when `None`) blurred as `blur` says; `on_frame`
 /// sees each blurred frame (`None` for an unreadable one) before the SLAM does, and can
 /// fail the study (when it writes the frame out, say). `seq` needs a ground truth.
 pub fn run_blurred(
     seq: &Sequence,
     blur: &MotionBlur,
-    seeds: &[u64],
+    variants: &[(u64, bool)],
     config: &PipelineConfig,
     max_frames: Option<usize>,
     mut on_frame: impl FnMut(Option<&RgbdFrame>) -> Result<(), String>,
@@ -60,15 +65,16 @@ pub fn run_blurred(
         dataset: seq.path().display().to_string(),
     })?;
     let camera = &seq.camera().camera;
-    let mut pipelines = seeds
+    let mut pipelines = variants
         .iter()
-        .map(|&seed| {
+        .map(|&(seed, depth_alignment)| {
             let mut c = config.clone();
             c.odometry.seed = seed;
+            c.odometry.depth_alignment = depth_alignment;
             Pipeline::new(seq.camera(), c)
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let mut tracked = vec![0usize; seeds.len()];
+    let mut tracked = vec![(0usize, 0usize); variants.len()];
     let (mut frames, mut unreadable, mut sharpness) = (0usize, 0usize, Vec::new());
     for item in seq.stream(max_frames, DECODE_AHEAD) {
         frames += 1;
@@ -93,10 +99,8 @@ pub fn run_blurred(
                 })?;
                 for (p, n) in pipelines.iter_mut().zip(tracked.iter_mut()) {
                     let r = p.process(&frame, decode_s)?;
-                    *n += usize::from(matches!(
-                        r.status,
-                        FrameStatus::Tracked | FrameStatus::Recovered
-                    ));
+                    n.0 += usize::from(r.status.estimated());
+                    n.1 += usize::from(r.status == FrameStatus::DepthAligned);
                 }
             }
             Err(StreamError::Frame(failure)) => {
@@ -116,8 +120,10 @@ pub fn run_blurred(
         }
     }
     let sharpness_median = crate::pipeline::median_p95(sharpness.into_iter()).0;
-    let mut runs = Vec::with_capacity(seeds.len());
-    for ((p, &seed), tracked) in pipelines.into_iter().zip(seeds).zip(tracked) {
+    let mut runs = Vec::with_capacity(variants.len());
+    for ((p, &(seed, depth_alignment)), (tracked, depth_aligned)) in
+        pipelines.into_iter().zip(variants).zip(tracked)
+    {
         let traj = p.finish()?.run.trajectory()?;
         let at = ate(gt, &traj, &slam_ate_options())?;
         let rp = rpe(gt, &traj, &RpeOptions::for_preset(Preset::Evo))?;
@@ -128,6 +134,8 @@ pub fn run_blurred(
             tracked,
             lost: frames - tracked,
             unreadable,
+            depth_alignment,
+            depth_aligned,
             ate_m: at.trans_m.rmse,
             rpe_m: rp.trans_m.rmse,
             rpe_deg: rp.rot_deg.rmse,
