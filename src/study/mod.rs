@@ -91,7 +91,8 @@ pub struct FrameBlur {
     pub image_motion_px: f64,
     /// Variance of the Laplacian of the grey image (grey levels²): falls as blur rises.
     pub sharpness: f64,
-    /// Whether the odometry estimated the frame (tracked or recovered).
+    /// Whether the odometry estimated the frame (tracked, recovered, relocalized or placed by
+    /// depth).
     pub tracked: bool,
 }
 
@@ -106,7 +107,7 @@ pub struct RunResult {
     pub seed: u64,
     /// Frames.
     pub frames: usize,
-    /// Frames the odometry estimated (tracked or recovered).
+    /// Frames the odometry estimated (tracked, recovered, relocalized or placed by depth).
     pub tracked: usize,
     /// Frames it could not estimate (predicted by constant velocity).
     pub lost: usize,

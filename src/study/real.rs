@@ -28,7 +28,7 @@ pub struct RealRun {
     pub seed: u64,
     /// Frames fed to the SLAM.
     pub frames: usize,
-    /// Frames the odometry estimated (tracked or recovered).
+    /// Frames the odometry estimated (tracked, recovered, relocalized or placed by depth).
     pub tracked: usize,
     /// Frames it could not estimate (predicted), unreadable frames included.
     pub lost: usize,
