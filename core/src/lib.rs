@@ -12,6 +12,7 @@
 //! * [`image`] and [`frame`]: plain image buffers and the RGB-D frame (depth in metres).
 //! * [`grid`]: regular x-y grids (elevation maps, ground-truth terrain), z up.
 //! * [`rng`]: seeded and counter-based random numbers (reproducible runs).
+//! * [`robust`]: Huber's kernel (weight and cost) for the estimators.
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
 //! * [`uncertainty`]: per-point 3x3 covariances of RGB-D measurements (PrimeSense model).
 //!
@@ -27,6 +28,7 @@ pub mod plane;
 pub mod pose;
 pub mod range_sensor;
 pub mod rng;
+pub mod robust;
 pub mod scan;
 pub mod serde_opt;
 pub mod time;

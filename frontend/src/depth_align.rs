@@ -22,10 +22,12 @@
 //! wall leaves the motion along it free: the smallest eigenvalue of the normalised
 //! information is checked).
 
-use nalgebra::{Isometry3, Matrix6, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix6, Point2, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use nalgebra::{SymmetricEigen, Vector6};
 use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
+use stride_core::plane::Plane;
+use stride_core::robust::huber_weight;
 use stride_core::uncertainty::PrimeSenseModel;
 
 /// One level of the alignment: samples every `stride` pixels, pairs closer than
@@ -148,6 +150,13 @@ pub struct DepthAlignParams {
     pub noise: PrimeSenseModel,
 }
 
+impl DepthAlignParams {
+    /// Whether a depth (m) is a measurement within the range used.
+    fn in_range(&self, d_m: f64) -> bool {
+        d_m.is_finite() && d_m >= self.min_depth_m && d_m <= self.max_depth_m
+    }
+}
+
 /// Aligns `current`'s depth with `keyframe`'s, starting at `current.world_from_camera`
 /// (see the module documentation).
 pub fn align(
@@ -159,11 +168,16 @@ pub fn align(
     let kf_from_world = keyframe.world_from_camera.inverse();
     let mut world_from_cur = current.world_from_camera;
     let mut last = Normal::default();
+    let mut sampled: Option<(u32, Vec<Point3<f64>>)> = None;
     for level in LEVELS {
-        let samples = samples(current.depth_m, camera, level.stride, params);
+        if sampled.as_ref().map(|s| s.0) != Some(level.stride) {
+            let points = samples(current.depth_m, camera, level.stride, params);
+            sampled = Some((level.stride, points));
+        }
+        let samples = sampled.as_ref().map_or(&[][..], |s| &s.1[..]);
         for _ in 0..level.iterations {
             let eq = normal_equations(
-                &samples,
+                samples,
                 keyframe,
                 &kf_from_world,
                 &world_from_cur,
@@ -220,7 +234,7 @@ fn samples(
     for v in (stride / 2..h).step_by(stride as usize) {
         for u in (stride / 2..w).step_by(stride as usize) {
             let d = f64::from(depth_m.get(u, v).unwrap_or(0.0));
-            if d.is_finite() && d >= params.min_depth_m && d <= params.max_depth_m {
+            if params.in_range(d) {
                 out.push(camera.unproject(&Point2::new(f64::from(u), f64::from(v)), d));
             }
         }
@@ -271,11 +285,7 @@ fn normal_equations(
         let sigma =
             (params.noise.sigma_d(p_cur.z).powi(2) + params.noise.sigma_d(q_kf.z).powi(2)).sqrt();
         let r = normal.dot(&diff) / sigma;
-        let huber = if r.abs() <= HUBER_K {
-            1.0
-        } else {
-            HUBER_K / r.abs()
-        };
+        let huber = huber_weight(r * r, Some(HUBER_K * HUBER_K));
         let mut j = Vector6::zeros();
         j.fixed_rows_mut::<3>(0).copy_from(&(normal / sigma));
         j.fixed_rows_mut::<3>(3)
@@ -288,8 +298,8 @@ fn normal_equations(
     n
 }
 
-/// The keyframe's point (camera frame, m) at the pixel where `p_kf` projects, and its unit
-/// normal facing the camera; none off the image, without depth, or across a depth edge.
+/// The keyframe's point (camera frame, m) at the pixel where `p_kf` projects, and the unit
+/// normal of its tangent plane facing the camera; none off the image, without depth, or across a depth edge.
 fn surface(
     depth_m: &DepthImage,
     camera: &PinholeCamera,
@@ -309,7 +319,7 @@ fn surface(
     let point = |du: i64, dv: i64| -> Option<(Point3<f64>, f64)> {
         let (x, y) = ((i64::from(u) + du) as u32, (i64::from(v) + dv) as u32);
         let d = f64::from(depth_m.get(x, y)?);
-        (d.is_finite() && d >= params.min_depth_m && d <= params.max_depth_m).then(|| {
+        params.in_range(d).then(|| {
             (
                 camera.unproject(&Point2::new(f64::from(x), f64::from(y)), d),
                 d,
@@ -330,18 +340,15 @@ fn surface(
         *slot = p;
     }
     let [left, right, up, down] = around;
-    let normal = (right - left).cross(&(down - up));
-    let len = normal.norm();
-    if len.is_nan() || len <= 0.0 {
-        return None;
-    }
-    // Facing the camera (towards -z of the points' direction).
-    let normal = if normal.dot(&centre.coords) > 0.0 {
-        -normal / len
-    } else {
-        normal / len
+    let normal = Unit::try_new((right - left).cross(&(down - up)), 0.0)?;
+    let tangent = Plane {
+        normal,
+        offset_m: normal.dot(&centre.coords),
     };
-    Some((centre, normal))
+    Some((
+        centre,
+        tangent.facing(&Point3::origin()).normal.into_inner(),
+    ))
 }
 
 /// The world-frame pose change of a perturbation `(translation, rotation vector)` whose
@@ -383,8 +390,13 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
     use super::*;
 
-    /// A plane `normal . p = offset` (world frame, m).
-    type Plane = (Vector3<f64>, f64);
+    /// The plane `normal . p = offset_m` (world frame, m).
+    fn plane(normal: Vector3<f64>, offset_m: f64) -> Plane {
+        Plane {
+            normal: Unit::new_normalize(normal),
+            offset_m,
+        }
+    }
 
     fn camera() -> PinholeCamera {
         PinholeCamera::new(262.5, 262.5, 159.5, 119.5, 320, 240).unwrap()
@@ -403,8 +415,8 @@ mod tests {
                 let dir = world_from_camera.rotation * ray.coords;
                 let nearest = planes
                     .iter()
-                    .filter_map(|(n, c)| {
-                        let t = (c - n.dot(&origin)) / n.dot(&dir);
+                    .filter_map(|p| {
+                        let t = (p.offset_m - p.normal.dot(&origin)) / p.normal.dot(&dir);
                         (t.is_finite() && t > 0.0 && t < 8.0).then_some(t)
                     })
                     .fold(f64::INFINITY, f64::min);
@@ -429,10 +441,22 @@ mod tests {
     /// ahead and a side wall 1.2 m to the right; three normals fix every direction.
     fn corner() -> Vec<Plane> {
         vec![
-            (Vector3::y(), 1.0),
-            (Vector3::z(), 3.0),
-            (Vector3::new(1.0, 0.0, 0.2).normalize(), 1.2),
+            plane(Vector3::y(), 1.0),
+            plane(Vector3::z(), 3.0),
+            plane(Vector3::new(1.0, 0.0, 0.2), 1.2),
         ]
+    }
+
+    /// [`align`] of `current` against `keyframe` (at the origin), from the origin.
+    fn align_from_origin(
+        keyframe: &DepthImage,
+        current: &DepthImage,
+    ) -> Result<DepthAlignment, DepthAlignError> {
+        let view = |depth_m| DepthView {
+            depth_m,
+            world_from_camera: Isometry3::identity(),
+        };
+        align(&view(keyframe), &view(current), &camera(), &params())
     }
 
     fn moved() -> Isometry3<f64> {
@@ -448,16 +472,8 @@ mod tests {
         let kf_depth = render(&planes, &Isometry3::identity());
         let truth = moved();
         let cur_depth = render(&planes, &truth);
-        let keyframe = DepthView {
-            depth_m: &kf_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        // The prediction: where the keyframe was (6 cm and 2.4 degrees off).
-        let current = DepthView {
-            depth_m: &cur_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        let a = align(&keyframe, &current, &camera(), &params()).unwrap();
+        // From where the keyframe was: the prediction is 6 cm and 2.4 degrees off.
+        let a = align_from_origin(&kf_depth, &cur_depth).unwrap();
         let err = truth.inverse() * a.world_from_cur;
         assert!(
             err.translation.vector.norm() < 1e-3 && err.rotation.angle().to_degrees() < 0.05,
@@ -476,18 +492,10 @@ mod tests {
     #[test]
     fn geometry_that_leaves_a_direction_free_is_refused() {
         // Floor and back wall only: sliding sideways (along both) changes nothing.
-        let planes = vec![(Vector3::y(), 1.0), (Vector3::z(), 3.0)];
+        let planes = vec![plane(Vector3::y(), 1.0), plane(Vector3::z(), 3.0)];
         let kf_depth = render(&planes, &Isometry3::identity());
         let cur_depth = render(&planes, &moved());
-        let keyframe = DepthView {
-            depth_m: &kf_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        let current = DepthView {
-            depth_m: &cur_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        let e = align(&keyframe, &current, &camera(), &params()).unwrap_err();
+        let e = align_from_origin(&kf_depth, &cur_depth).unwrap_err();
         assert!(matches!(e, DepthAlignError::Degenerate { .. }), "{e}");
     }
 
@@ -500,16 +508,11 @@ mod tests {
             Translation3::new(0.0, 0.0, 0.0),
             UnitQuaternion::from_euler_angles(0.0, 2.1, 0.0),
         );
-        let cur_depth = render(&[(Vector3::y(), 1.0), (-Vector3::z(), 3.0)], &away);
-        let keyframe = DepthView {
-            depth_m: &kf_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        let current = DepthView {
-            depth_m: &cur_depth,
-            world_from_camera: Isometry3::identity(),
-        };
-        let e = align(&keyframe, &current, &camera(), &params());
+        let cur_depth = render(
+            &[plane(Vector3::y(), 1.0), plane(-Vector3::z(), 3.0)],
+            &away,
+        );
+        let e = align_from_origin(&kf_depth, &cur_depth);
         assert!(e.is_err(), "{e:?}");
     }
 }

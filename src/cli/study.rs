@@ -357,25 +357,29 @@ fn report(
 ) -> Report {
     // One series per gait, and per mitigation setting when both ran.
     let both = runs.iter().any(|r| r.depth_alignment) && runs.iter().any(|r| !r.depth_alignment);
+    let settings: &[Option<bool>] = if both {
+        &[Some(false), Some(true)]
+    } else {
+        &[None]
+    };
     let per_gait = |f: &dyn Fn(&RunResult) -> (f64, f64), style: Style| -> Vec<Series> {
         ["tripod", "crawl"]
             .iter()
-            .flat_map(|g| [(g, false), (g, true)])
+            .flat_map(|g| settings.iter().map(move |m| (g, *m)))
             .enumerate()
             .filter_map(|(i, (g, m))| {
                 let mut pts: Vec<(f64, f64)> = runs
                     .iter()
-                    .filter(|r| r.gait == *g && (!both || r.depth_alignment == m))
+                    .filter(|r| r.gait == *g && m.is_none_or(|m| r.depth_alignment == m))
                     .map(f)
                     .collect();
                 pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-                let name = match both {
-                    true => format!("{g}, mitigation {}", on_off(m)),
-                    false => (*g).to_owned(),
+                let name = match m {
+                    Some(m) => format!("{g}, mitigation {}", on_off(m)),
+                    None => (*g).to_owned(),
                 };
                 let colour = PALETTE.get(i).copied().unwrap_or(PALETTE[0]);
-                (!pts.is_empty() && (both || m))
-                    .then(|| Series::line(name, colour, pts).with_style(style))
+                (!pts.is_empty()).then(|| Series::line(name, colour, pts).with_style(style))
             })
             .collect()
     };
