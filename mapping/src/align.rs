@@ -21,6 +21,7 @@
 use crate::input::{Cloud, DepthPixel, HeightModel, SensorFrame};
 use crate::stack::StackMapper;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Parameters of the alignment of a frame to the map.
@@ -150,6 +151,36 @@ impl StackMapper {
     /// documentation). The map is not changed (only the ray table the update shares is
     /// brought up to date for the frame's camera).
     pub fn align(&mut self, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> AlignOutcome {
+        if let Cloud::Depth { camera, .. } = frame.cloud() {
+            self.prepare_rays(camera);
+        }
+        self.align_prepared(frame, cfg)
+    }
+
+    /// [`StackMapper::align`] of each frame, against the map as it is (none is integrated),
+    /// the frames spread over the threads.
+    pub fn align_each(
+        &mut self,
+        frames: &[SensorFrame<'_>],
+        cfg: &AlignConfig,
+    ) -> Vec<AlignOutcome> {
+        let camera = frames.iter().find_map(|f| match f.cloud() {
+            Cloud::Depth { camera, .. } => Some(camera),
+            Cloud::Points { .. } => None,
+        });
+        if let Some(camera) = camera {
+            self.prepare_rays(camera);
+        }
+        let mapper = &*self;
+        frames
+            .par_iter()
+            .map(|f| mapper.align_prepared(f, cfg))
+            .collect()
+    }
+
+    /// [`StackMapper::align`] once the ray table is prepared (a frame of another camera
+    /// builds its own).
+    fn align_prepared(&self, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> AlignOutcome {
         let samples = samples(self, frame, cfg);
         let centre = frame.map_from_sensor.translation.vector;
         let mut correction = Isometry3::identity();
@@ -201,14 +232,19 @@ impl StackMapper {
 }
 
 /// The frame's usable points in the map frame at its pose, every `stride`-th one.
-fn samples(mapper: &mut StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> Vec<Sample> {
+fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> Vec<Sample> {
     let stride = cfg.stride;
     let pose = frame.map_from_sensor;
     let r3 = pose.rotation.inverse() * Vector3::z();
     let mut out = Vec::new();
     match frame.cloud() {
         Cloud::Depth { depth_m, camera } => {
-            let (rays, sensor) = mapper.rays_and_sensor(camera);
+            let (prepared, sensor) = mapper.prepared_rays(camera);
+            let mut own = crate::input::RayCache::default();
+            let rays = match prepared {
+                Some(r) => r,
+                None => own.rays(camera),
+            };
             let (lo, hi) = sensor.range_m();
             let hi = hi.min(cfg.max_depth_m);
             let mut row = Vec::new();

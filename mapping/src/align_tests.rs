@@ -168,3 +168,29 @@ fn invalid_parameters_are_refused_by_name() {
         }
     }
 }
+
+#[test]
+fn aligning_views_together_finds_what_aligning_each_alone_does() {
+    let mut m = mapped_ground();
+    let cfg = AlignConfig::default();
+    let (pts, covs) = frame_points(&ground());
+    let poses = [
+        believed(0.01, 0.3f64.to_radians()),
+        true_pose(),
+        believed(-0.008, -0.5f64.to_radians()),
+        believed(0.2, 0.0),
+    ];
+    let frames: Vec<SensorFrame<'_>> = poses
+        .iter()
+        .map(|&p| SensorFrame::points(&pts, &covs, p, 0.0).unwrap())
+        .collect();
+    let together = m.align_each(&frames, &cfg);
+    let alone: Vec<AlignOutcome> = frames.iter().map(|f| m.align(f, &cfg)).collect();
+    assert_eq!(together, alone);
+    assert!(matches!(together.first(), Some(AlignOutcome::Aligned(_))));
+    // 20 cm off: no point within the outlier distance of the map.
+    assert!(
+        matches!(together.last(), Some(AlignOutcome::TooFewPoints(_))),
+        "{together:?}"
+    );
+}

@@ -371,6 +371,17 @@ impl RayCache {
         }
         Rays::Table(&self.rays, camera.width() as usize)
     }
+
+    /// The rays of `camera` when no table needs building (no distortion, or the table
+    /// holds this camera's); `None` otherwise.
+    pub fn cached(&self, camera: &PinholeCamera) -> Option<Rays<'_>> {
+        if camera.distortion().is_none() {
+            Some(Rays::Pinhole(*camera))
+        } else {
+            (self.camera.as_ref() == Some(camera))
+                .then(|| Rays::Table(&self.rays, camera.width() as usize))
+        }
+    }
 }
 
 /// The undistorted normalised coordinates `(x/z, y/z)` of a camera's pixels.

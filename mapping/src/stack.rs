@@ -239,14 +239,20 @@ impl StackMapper {
         )
     }
 
-    /// The ray table of `camera` (rebuilt only when the camera changes, shared with the
-    /// update's input stage) and the sensor model, for a pass over a depth image beside the
-    /// update ([`StackMapper::align`]).
-    pub(crate) fn rays_and_sensor(
-        &mut self,
+    /// Builds the ray table of `camera` if it is not the one held (shared with the
+    /// update's input stage), for passes over depth images beside the update
+    /// ([`StackMapper::align`]).
+    pub(crate) fn prepare_rays(&mut self, camera: &PinholeCamera) {
+        self.rays.rays(camera);
+    }
+
+    /// The ray table of `camera` when [`StackMapper::prepare_rays`] built it (or none is
+    /// needed), and the sensor model.
+    pub(crate) fn prepared_rays(
+        &self,
         camera: &PinholeCamera,
-    ) -> (crate::input::Rays<'_>, &PrimeSenseHeight) {
-        (self.rays.rays(camera), &self.cfg.sensor)
+    ) -> (Option<crate::input::Rays<'_>>, &PrimeSenseHeight) {
+        (self.rays.cached(camera), &self.cfg.sensor)
     }
 
     /// The height (m) and variance (m²) of the established cell under map point `(x, y)`
