@@ -207,6 +207,9 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
             "shift_mm_abs": ms_json(s.aligned.iter().map(|a| a.0.abs() * 1e3)),
             "tilt_deg": ms_json(s.aligned.iter().map(|a| a.1.to_degrees())),
         },
+        // Each pass of the final alignment: views aligned and kept, the change it made
+        // (rad, m) and its wall time (s).
+        "final_alignment": serde_json::to_value(&s.final_alignment).unwrap_or(Value::Null),
         "archive_dropped_cells": s.archive_dropped_cells,
         "floor": floor.and_then(|f| serde_json::to_value(f).ok()),
         "against_true_terrain": score.and_then(|sc| serde_json::to_value(sc).ok()),

@@ -54,6 +54,15 @@ pub struct TerrainConfig {
     /// integrates views at the SLAM's poses as they are.
     #[serde(with = "stride_core::serde_opt")]
     pub align: Option<AlignConfig>,
+    /// At the end of a run, the kept views are aligned again this many times, each time
+    /// against the map of all of them ([`Terrain::finish`], `terrain_realign`); 0: never.
+    /// Needs `align`.
+    pub final_alignment_passes: usize,
+    /// The fraction of a view's height and tilt offset from the map of all views that the
+    /// final alignment applies, relative to the SLAM's pose (0 to 1): below 1 the SLAM's
+    /// pose keeps a pull, so that what the views cannot tell apart (a slow bend of the
+    /// whole map) stays where the SLAM put it.
+    pub final_alignment_gain: f64,
 }
 
 impl Default for TerrainConfig {
@@ -66,6 +75,8 @@ impl Default for TerrainConfig {
             rebuild_rotation_rad: 0.005,
             max_stored_views: 120,
             align: Some(AlignConfig::default()),
+            final_alignment_passes: 8,
+            final_alignment_gain: 0.9,
         }
     }
 }
@@ -105,6 +116,20 @@ impl TerrainConfig {
                 "map.every_frames",
                 self.every_frames.to_string(),
                 "1 to 1000",
+            );
+        }
+        if self.final_alignment_passes > 50 {
+            return bad(
+                "map.final_alignment_passes",
+                self.final_alignment_passes.to_string(),
+                "0 to 50",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.final_alignment_gain) {
+            return bad(
+                "map.final_alignment_gain",
+                self.final_alignment_gain.to_string(),
+                "0 to 1",
             );
         }
         match self.align.as_ref().map(AlignConfig::validate) {
@@ -165,6 +190,8 @@ pub struct TerrainStats {
     pub align_too_few_points: usize,
     /// Views first mapped unaligned because the correction found exceeded its limits.
     pub align_too_large: usize,
+    /// The final alignment's passes, in order ([`TerrainConfig::final_alignment_passes`]).
+    pub final_alignment: Vec<RealignPass>,
     /// Columns dropped from the maps' archives to keep `map.stack.archive_max_cells`
     /// (the farthest first): 0 unless the walk covered more ground than the cap.
     pub archive_dropped_cells: usize,
@@ -473,7 +500,9 @@ impl Terrain {
 
     /// The final map: the kept views at their frames' final `world_from_camera` in the
     /// final world (`final_pose` of a frame position), rebuilt if any moved beyond the
-    /// thresholds. The settled part stays where it was mapped.
+    /// thresholds, then aligned again against the map of all of them
+    /// ([`TerrainConfig::final_alignment_passes`]). The settled part stays where it was
+    /// mapped.
     pub fn finish(
         mut self,
         final_pose: impl Fn(usize) -> Option<Isometry3<f64>>,
@@ -491,6 +520,9 @@ impl Terrain {
         if moved {
             self.rebuild(&now)?;
         }
+        for _ in 0..self.config.final_alignment_passes {
+            self.realign()?;
+        }
         self.count_archive_drops();
         let layers = self.layers()?;
         Ok((layers, self.stats))
@@ -501,6 +533,10 @@ impl Terrain {
         &self.stats
     }
 }
+
+#[path = "terrain_realign.rs"]
+mod realign;
+pub use realign::RealignPass;
 
 #[cfg(test)]
 #[path = "terrain_tests.rs"]
