@@ -49,6 +49,9 @@ pub struct KeyframeReport {
     pub new_points: usize,
     /// Whether the odometry link joined the optimization (too few re-observations).
     pub odometry_edge: bool,
+    /// Whether the odometry's depth link ([`stride_frontend::DepthLink`]) joined the map's
+    /// constraints.
+    pub depth_edge: bool,
     /// Observations removed as outliers after optimizing.
     pub outliers: usize,
     /// Points and keyframes culled.
@@ -99,7 +102,8 @@ pub struct Backend {
     pub(crate) map: Map,
     pub(crate) first: Option<KeyframeId>,
     pub(crate) newest: Option<KeyframeId>,
-    /// Pose-graph mode: relative motions measured between keyframes.
+    /// Relative motions measured between keyframes: the odometry's depth links, and in
+    /// pose-graph mode the motions from shared points.
     pub(crate) pose_edges: Vec<KeyframeEdge>,
     /// The map point of each track the latest keyframe saw (every track the odometry still
     /// follows was in it), kept apart from the map so that the latest keyframe can be
@@ -123,6 +127,34 @@ fn odometry_information(
         info
     } else {
         diagonal_information(fallback)
+    }
+}
+
+impl Backend {
+    /// Adds keyframe `id`'s depth link as a pose-pose edge from the previous keyframe (or
+    /// the live keyframe that one is kept relative to); whether it was added.
+    fn add_depth_edge(
+        &mut self,
+        id: KeyframeId,
+        link: Option<&stride_frontend::DepthLink>,
+    ) -> bool {
+        let Some(l) = link else { return false };
+        let Some((previous, live_from_previous)) = self.map.live_ancestor(l.previous_id) else {
+            return false;
+        };
+        // A right perturbation of the keyframe's pose does not depend on the frame the
+        // link starts from: the link's tangent information holds after composing.
+        let information = tangent_information(&l.previous_from_this, &l.information);
+        let usable = information.iter().all(|v| v.is_finite()) && information.cholesky().is_some();
+        if usable {
+            self.pose_edges.push(KeyframeEdge {
+                from: previous,
+                to: id,
+                from_from_to: live_from_previous * l.previous_from_this,
+                information,
+            });
+        }
+        usable
     }
 }
 
@@ -265,6 +297,7 @@ impl Backend {
             fused: 0,
             new_points: 0,
             odometry_edge: false,
+            depth_edge: false,
             outliers: 0,
             culled_points: 0,
             culled_keyframes: 0,
@@ -273,6 +306,8 @@ impl Backend {
             optimize_s: 0.0,
             time_s: 0.0,
         };
+        // The depth link: a constraint between the two poses for as long as both live.
+        report.depth_edge = self.add_depth_edge(id, input.info.depth.as_ref());
         // 2. Association: tracks first, then ORB matching against the local map.
         let (by_track, pose_cov) = self.associate_tracks(id, pose_cov);
         report.by_track = by_track;

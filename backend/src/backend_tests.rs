@@ -127,6 +127,7 @@ pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: 
             previous_id: i as u64 - 1,
             previous_from_this: odometry[i - 1].inverse() * odometry[i],
             information: Matrix6::identity() * 1e4,
+            inliers: 100,
         });
         inputs.push(KeyframeInput {
             frame_index: i * 3,
@@ -136,6 +137,7 @@ pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: 
                 id: i as u64,
                 features,
                 odometry: odometry_link,
+                depth: None,
             },
         });
     }

@@ -125,6 +125,13 @@ pub struct VoConfig {
     /// marked [`crate::TrackingStatus::DepthAligned`]. Needs `recovery_keyframes` (the last
     /// keyframe's depth is kept with them).
     pub depth_alignment: bool,
+    /// Depth links between keyframes ([`crate::KeyframeInfo::depth`]): a new keyframe
+    /// whose pose rests on fewer than `keyframe_depth_link_inliers` inliers (a wide
+    /// baseline after dropped frames, a blurred image) has its depth image aligned with the
+    /// previous keyframe's ([`crate::depth_align`], from the odometry's relative pose), and
+    /// the relative pose found goes to a back end as a constraint beside the features'
+    /// points. 0: never. Needs `recovery_keyframes`.
+    pub keyframe_depth_link_inliers: usize,
     /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's
     /// time by the camera's velocity (see [`crate::points::ShutterMotion`]). 0 for a global
@@ -415,6 +422,7 @@ impl Default for VoConfig {
             recovery_min_inliers: 20,
             relocalization_keyframes: Some(2000),
             depth_alignment: true,
+            keyframe_depth_link_inliers: 60,
             rolling_shutter_s: 0.0,
             seed: 1,
         }

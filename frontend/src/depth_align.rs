@@ -148,9 +148,23 @@ pub struct DepthAlignParams {
     pub depth_edge_rel: f64,
     /// The depth noise model.
     pub noise: PrimeSenseModel,
+    /// Fewest samples paired with the keyframe's surface, as a fraction of the samples
+    /// with depth: below it the alignment is refused.
+    pub min_paired_fraction: f64,
 }
 
 impl DepthAlignParams {
+    /// The odometry's depth range, edge test and noise model.
+    pub fn from_config(c: &crate::VoConfig) -> Self {
+        Self {
+            min_depth_m: c.min_depth_m,
+            max_depth_m: c.max_depth_m,
+            depth_edge_rel: c.depth_edge_rel,
+            noise: c.uncertainty,
+            min_paired_fraction: MIN_PAIRED_FRACTION,
+        }
+    }
+
     /// Whether a depth (m) is a measurement within the range used.
     fn in_range(&self, d_m: f64) -> bool {
         d_m.is_finite() && d_m >= self.min_depth_m && d_m <= self.max_depth_m
@@ -201,7 +215,7 @@ pub fn align(
         }
     }
     let (pairs, samples) = (last.pairs, last.samples);
-    if pairs < MIN_PAIRS || (pairs as f64) < MIN_PAIRED_FRACTION * samples as f64 {
+    if pairs < MIN_PAIRS || (pairs as f64) < params.min_paired_fraction * samples as f64 {
         return Err(DepthAlignError::Overlap { pairs, samples });
     }
     let rms_sigmas = (last.cost / pairs as f64).sqrt();
@@ -434,6 +448,7 @@ mod tests {
             max_depth_m: 6.0,
             depth_edge_rel: 0.04,
             noise: PrimeSenseModel::default(),
+            min_paired_fraction: MIN_PAIRED_FRACTION,
         }
     }
 

@@ -126,6 +126,8 @@ impl VisualOdometry {
         } else {
             vec![None; tracks.len()]
         };
+        // Before this keyframe joins the recent ones: the link is to the one before it.
+        let depth = odometry.as_ref().and_then(|o| self.depth_link(frame, o));
         if let Some(keep) = self.config.recovery_keyframes {
             self.recent
                 .push(id, pyr, &frame.depth_m, *world_from_cur, keep);
@@ -150,6 +152,7 @@ impl VisualOdometry {
             id,
             features,
             odometry,
+            depth,
         })
     }
 }

@@ -16,6 +16,7 @@
 
 pub mod config;
 pub mod depth_align;
+mod depth_link;
 pub mod error;
 pub mod features;
 pub mod keyframe;
@@ -31,7 +32,7 @@ pub mod vo;
 pub use config::{InlierTest, VoConfig};
 pub use error::FrontendError;
 pub use result::{
-    FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, StageTimes, TrackingStatus,
+    DepthLink, FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, StageTimes, TrackingStatus,
 };
 pub use vo::VisualOdometry;
 

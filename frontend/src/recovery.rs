@@ -112,11 +112,11 @@ pub(crate) struct OrbPoint {
 }
 
 /// A recent keyframe as recovery needs it.
-struct RecentKeyframe {
+pub(crate) struct RecentKeyframe {
     /// Its identifier.
-    id: u64,
+    pub(crate) id: u64,
     pyramid: Rc<Pyramid>,
-    depth_m: DepthImage,
+    pub(crate) depth_m: DepthImage,
     world_from_kf: Isometry3<f64>,
     /// Its ORB points, computed the first time recovery needs them.
     points: Option<Vec<OrbPoint>>,
@@ -124,7 +124,7 @@ struct RecentKeyframe {
 
 /// The most recent keyframes (oldest first) and the ORB extractor recovery uses.
 pub(crate) struct RecentKeyframes {
-    keyframes: VecDeque<RecentKeyframe>,
+    pub(crate) keyframes: VecDeque<RecentKeyframe>,
     pub(crate) orb: Ptr<ORB>,
 }
 
@@ -363,13 +363,7 @@ impl VisualOdometry {
             return None;
         }
         let kf = self.recent.keyframes.back()?;
-        let c = &self.config;
-        let params = DepthAlignParams {
-            min_depth_m: c.min_depth_m,
-            max_depth_m: c.max_depth_m,
-            depth_edge_rel: c.depth_edge_rel,
-            noise: c.uncertainty,
-        };
+        let params = DepthAlignParams::from_config(&self.config);
         let keyframe = DepthView {
             depth_m: &kf.depth_m,
             world_from_camera: kf.world_from_kf,

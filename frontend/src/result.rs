@@ -84,6 +84,22 @@ pub struct OdometryLink {
     /// perturbation, translation then rotation); zero when the pose was predicted rather
     /// than estimated ([`TrackingStatus::Lost`]).
     pub information: Matrix6<f64>,
+    /// The feature inliers the pose rests on: 0 when it was predicted
+    /// ([`TrackingStatus::Lost`]) or placed by its depth ([`TrackingStatus::DepthAligned`]).
+    pub inliers: usize,
+}
+
+/// The link of a keyframe to the one before it measured by aligning their depth images
+/// ([`crate::depth_align`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthLink {
+    /// The previous keyframe's identifier.
+    pub previous_id: u64,
+    /// `previous_from_this` (m).
+    pub previous_from_this: Isometry3<f64>,
+    /// Information matrix of `previous_from_this` (left perturbation in the previous
+    /// keyframe's camera frame, translation then rotation; 1/m², 1/rad²).
+    pub information: Matrix6<f64>,
 }
 
 /// A new keyframe: what a back end needs to add it to its map.
@@ -95,6 +111,10 @@ pub struct KeyframeInfo {
     pub features: Vec<KeyframeFeature>,
     /// The link to the previous keyframe; `None` for the first.
     pub odometry: Option<OdometryLink>,
+    /// The same link measured by depth alignment, for a keyframe whose pose rests on few
+    /// inliers ([`crate::VoConfig::keyframe_depth_link_inliers`]); `None` otherwise, for
+    /// the first keyframe, after a lost frame, or when the alignment was refused.
+    pub depth: Option<DepthLink>,
 }
 
 /// What the odometry says about one frame.

@@ -383,6 +383,7 @@ impl VisualOdometry {
                 previous_id: self.kf_count.saturating_sub(1),
                 previous_from_this: kf_from_cur,
                 information,
+                inliers,
             };
             let t_d = Instant::now();
             new_keyframe = Some(self.start_keyframe(
