@@ -23,6 +23,7 @@ use crate::stack::StackMapper;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use stride_core::robust::huber_weight;
 
 /// Parameters of the alignment of a frame to the map.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -326,10 +327,8 @@ fn solve(
             continue;
         }
         let var = s.var_m2 + f64::from(var_cell);
-        let sigma = var.sqrt();
         // Huber: full weight within huber_sigmas standard deviations, then falling as 1/|r|.
-        let k = cfg.huber_sigmas * sigma;
-        let w = if r.abs() <= k { 1.0 } else { k / r.abs() } / var;
+        let w = huber_weight(r * r / var, Some(cfg.huber_sigmas * cfg.huber_sigmas)) / var;
         let j = Vector3::new(1.0, p.y - c.y, -(p.x - c.x));
         ata += w * j * j.transpose();
         atb += w * r * j;
