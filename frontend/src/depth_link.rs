@@ -3,7 +3,7 @@
 //! keyframe's pose rests on few inliers. A back end adds the relative pose found as a
 //! pose-pose constraint beside the features' points.
 
-use crate::depth_align::{align, DepthAlignParams, DepthView};
+use crate::depth_align::DepthAlignParams;
 use crate::result::{DepthLink, OdometryLink};
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
@@ -35,33 +35,22 @@ impl VisualOdometry {
             .keyframes
             .back()
             .filter(|k| k.id == odometry.previous_id)?;
-        // Both in the previous keyframe's frame: the link is relative.
-        let keyframe = DepthView {
-            depth_m: &previous.depth_m,
-            world_from_camera: Isometry3::identity(),
-        };
-        let current = DepthView {
-            depth_m: &frame.depth_m,
-            world_from_camera: odometry.previous_from_this,
-        };
         let params = DepthAlignParams {
             min_paired_fraction: LINK_MIN_PAIRED_FRACTION,
             ..DepthAlignParams::from_config(&self.config)
         };
-        match align(&keyframe, &current, &self.camera, &params) {
-            Ok(a) => Some(DepthLink {
-                previous_id: odometry.previous_id,
-                previous_from_this: a.world_from_cur,
-                information: a.information,
-            }),
-            Err(e) => {
-                tracing::debug!(
-                    "frame {}: no depth link to keyframe {}: {e}",
-                    frame.index,
-                    odometry.previous_id
-                );
-                None
-            }
-        }
+        // Both in the previous keyframe's frame: the link is relative.
+        let a = self.align_with(
+            frame,
+            previous,
+            Isometry3::identity(),
+            odometry.previous_from_this,
+            &params,
+        )?;
+        Some(DepthLink {
+            previous_id: odometry.previous_id,
+            previous_from_this: a.world_from_cur,
+            information: a.information,
+        })
     }
 }

@@ -16,7 +16,7 @@
 //! up among all the keyframes the run may come back to, by appearance; when that fails too,
 //! its depth is aligned with the newest keyframe's ([`crate::depth_align`]).
 
-use crate::depth_align::{align, DepthAlignParams, DepthView};
+use crate::depth_align::{align, DepthAlignParams, DepthAlignment, DepthView};
 use crate::error::FrontendError;
 use crate::features::{match_descriptors, OrbDescriptor};
 use crate::keyframe::{rotate_cov, Track, TrackPoint};
@@ -116,7 +116,7 @@ pub(crate) struct RecentKeyframe {
     /// Its identifier.
     pub(crate) id: u64,
     pyramid: Rc<Pyramid>,
-    pub(crate) depth_m: DepthImage,
+    depth_m: DepthImage,
     world_from_kf: Isometry3<f64>,
     /// Its ORB points, computed the first time recovery needs them.
     points: Option<Vec<OrbPoint>>,
@@ -364,35 +364,50 @@ impl VisualOdometry {
         }
         let kf = self.recent.keyframes.back()?;
         let params = DepthAlignParams::from_config(&self.config);
+        let a = self.align_with(frame, kf, kf.world_from_kf, *world_from_pred, &params)?;
+        tracing::debug!(
+            "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",
+            frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas, a.condition
+        );
+        Some(Recovered {
+            world_from_cur: a.world_from_cur,
+            inliers: 0,
+            iterations: 0,
+            information: a.information,
+            tracks: Vec::new(),
+            matches: 0,
+            matched_keyframe: kf.id,
+        })
+    }
+
+    /// Aligns `frame`'s depth with recent keyframe `kf`'s ([`crate::depth_align`]): the
+    /// keyframe at `world_from_kf`, the frame starting at `world_from_cur` (any common
+    /// frame). `None` when the alignment is refused (logged).
+    pub(crate) fn align_with(
+        &self,
+        frame: &RgbdFrame,
+        kf: &RecentKeyframe,
+        world_from_kf: Isometry3<f64>,
+        world_from_cur: Isometry3<f64>,
+        params: &DepthAlignParams,
+    ) -> Option<DepthAlignment> {
         let keyframe = DepthView {
             depth_m: &kf.depth_m,
-            world_from_camera: kf.world_from_kf,
+            world_from_camera: world_from_kf,
         };
         let current = DepthView {
             depth_m: &frame.depth_m,
-            world_from_camera: *world_from_pred,
+            world_from_camera: world_from_cur,
         };
-        match align(&keyframe, &current, &self.camera, &params) {
-            Ok(a) => {
+        align(&keyframe, &current, &self.camera, params)
+            .map_err(|e| {
                 tracing::debug!(
-                    "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",
-                    frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas, a.condition
+                    "frame {}: depth not aligned with keyframe {}: {e}",
+                    frame.index,
+                    kf.id
                 );
-                Some(Recovered {
-                    world_from_cur: a.world_from_cur,
-                    inliers: 0,
-                    iterations: 0,
-                    information: a.information,
-                    tracks: Vec::new(),
-                    matches: 0,
-                    matched_keyframe: kf.id,
-                })
-            }
-            Err(e) => {
-                tracing::debug!("frame {}: depth not aligned: {e}", frame.index);
-                None
-            }
-        }
+            })
+            .ok()
     }
 
     /// The pose and the new tracks (the inliers, carrying their matched world points) of

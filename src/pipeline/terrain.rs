@@ -443,8 +443,7 @@ impl Terrain {
     /// A new live map from every kept view with a pose (`poses`, one per view), in order.
     fn rebuild(&mut self, poses: &[Option<Isometry3<f64>>]) -> Result<(), PipelineError> {
         let start = Instant::now();
-        self.dropped_by_replaced += self.live.archive_cells().1;
-        self.live = StackMapper::new(self.config.stack.clone())?;
+        self.clear_live()?;
         for (i, pose) in poses.iter().enumerate() {
             match *pose {
                 Some(p) => {
@@ -460,6 +459,13 @@ impl Terrain {
         }
         self.stats.rebuilds += 1;
         self.stats.rebuild_s.push(start.elapsed().as_secs_f64());
+        Ok(())
+    }
+
+    /// Replaces the live map with an empty one, counting the archive columns it dropped.
+    fn clear_live(&mut self) -> Result<(), PipelineError> {
+        self.dropped_by_replaced += self.live.archive_cells().1;
+        self.live = StackMapper::new(self.config.stack.clone())?;
         Ok(())
     }
 

@@ -20,7 +20,6 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use std::time::Instant;
 use stride_mapping::align::{AlignConfig, AlignOutcome};
 use stride_mapping::input::SensorFrame;
-use stride_mapping::stack::StackMapper;
 use stride_mapping::ElevationMapper;
 
 /// What one pass of the final alignment did.
@@ -99,8 +98,7 @@ impl Terrain {
         pass.rotation_rms_rad = (pass.rotation_rms_rad / n).sqrt();
         pass.height_rms_m = (pass.height_rms_m / n).sqrt();
         // The live map anew from every view at its new pose.
-        self.dropped_by_replaced += self.live.archive_cells().1;
-        self.live = StackMapper::new(self.config.stack.clone())?;
+        self.clear_live()?;
         for (s, pose) in self.stored.iter_mut().zip(new_poses) {
             let Some(pose) = pose else { continue };
             let frame = SensorFrame::depth(&s.depth_m, &self.camera, pose, s.t_s)?;
