@@ -1,7 +1,7 @@
 //! The generator's parameters, their defaults and their validation.
 
 use super::motion::MotionConfig;
-use super::render::DepthNoise;
+use super::sensor::DepthNoise;
 use super::terrain;
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;

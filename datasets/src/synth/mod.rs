@@ -25,12 +25,14 @@ pub mod raster;
 pub mod render;
 pub mod scanner;
 pub mod scene;
+pub mod sensor;
 pub mod stripe;
 pub mod terrain;
 pub mod texture;
 
 mod config;
 mod output;
+mod pool;
 
 pub use config::{SynthConfig, SynthError, TerrainSource};
 pub use output::{generate, SynthSummary};
@@ -44,8 +46,9 @@ pub const ACCELEROMETER_HZ: f64 = 100.0;
 /// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
 pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
 use nalgebra::Isometry3;
-use render::{depth_sensor, rgb_sensor, Renderer, Visibility};
+use render::{Renderer, Visibility};
 use scene::Scene;
+use sensor::{depth_sensor, rgb_sensor, SensorFields};
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::grid::{Grid, GridGeometry};
@@ -98,6 +101,7 @@ pub struct Synth {
     scene: Scene,
     motion: Motion,
     camera: PinholeCamera,
+    sensor_fields: SensorFields,
 }
 
 impl Synth {
@@ -141,11 +145,13 @@ impl Synth {
             config.seed,
         );
         let camera = config.camera.camera.without_distortion();
+        let sensor_fields = SensorFields::new(&camera, &config.depth_noise, config.seed);
         Ok(Self {
             config,
             scene,
             motion,
             camera,
+            sensor_fields,
         })
     }
 
@@ -256,11 +262,11 @@ impl Synth {
         } else {
             motion_px + 2.0
         };
-        let geom = renderer.render_with(&pose, rs <= 0.0, visibility);
+        let mut geom = renderer.render_with(&pose, rs <= 0.0, visibility);
         let mut color = if rs > 0.0 {
-            vec![[0.0f32; 3]; geom.color.len()]
+            renderer.color_buffer()
         } else {
-            geom.color.clone()
+            std::mem::take(&mut geom.color)
         };
         for k in 0..n {
             if k == n / 2 && rs <= 0.0 {
@@ -288,18 +294,23 @@ impl Synth {
         let rgb = rgb_sensor(
             &color,
             &self.camera,
+            &self.sensor_fields,
             cfg.read_noise_dn,
             cfg.seed,
             index as u64,
         );
         let depth_raw = depth_sensor(
             &geom,
-            self.camera.width() as usize,
+            &self.sensor_fields,
             &cfg.depth_noise,
             cfg.camera.depth_scale,
             cfg.seed,
             index as u64,
         );
+        renderer.recycle_color(color);
+        let depth_true_m = std::mem::take(&mut geom.depth_z);
+        let marched_rays = geom.marched_rays;
+        renderer.recycle(geom);
         // True speeds by central differences over 1 ms.
         let h = 1e-3;
         let (pa, pb) = (
@@ -311,8 +322,8 @@ impl Synth {
         SynthFrame {
             rgb,
             depth_raw,
-            marched_rays: geom.marched_rays,
-            depth_true_m: geom.depth_z,
+            marched_rays,
+            depth_true_m,
             info: FrameInfo {
                 index,
                 t_s: cfg.start_time_s + t,
