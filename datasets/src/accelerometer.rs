@@ -1,10 +1,12 @@
-//! Accelerometer samples in the TUM layout: `accelerometer.txt`, one `timestamp ax ay az`
-//! per line (s, m/s²).
+//! Inertial samples in the TUM layout, one `timestamp x y z` per line: `accelerometer.txt`
+//! (s, m/s²) and `gyroscope.txt` (s, rad/s).
 //!
-//! Frame and sign: the specific force in the camera frame (x right, y down, z forward), so
-//! that a camera at rest reads the reaction to gravity, pointing up: a level camera reads
-//! about `(0, -9.81, 0)`. TUM's Kinect recordings read this way; stride's synthetic lab
-//! writes it.
+//! Frame and sign: both in the camera frame (x right, y down, z forward). The accelerometer
+//! reads the specific force, so that a camera at rest reads the reaction to gravity,
+//! pointing up: a level camera reads about `(0, -9.81, 0)`. TUM's Kinect recordings read
+//! this way; stride's synthetic lab writes it. The gyroscope reads the camera's angular
+//! velocity `omega` in its own frame: `world_from_camera(t + s) = world_from_camera(t) *
+//! exp(omega s)` for small `s`. The synthetic lab writes one; TUM's recordings have none.
 
 use crate::error::DatasetError;
 use crate::text::{data_lines, parse_finite, read_text};
@@ -15,6 +17,8 @@ use stride_output::fs::write_atomic;
 
 /// One sample: time (s) and specific force in the camera frame (m/s²).
 pub type AccelSample = (f64, Vector3<f64>);
+/// One sample: time (s) and angular velocity in the camera frame (rad/s).
+pub type GyroSample = (f64, Vector3<f64>);
 
 /// Reads an accelerometer file; errors name the file and line (a line without four numbers,
 /// samples out of time order).
@@ -24,20 +28,35 @@ pub fn read_accelerometer(path: &Path) -> Result<Vec<AccelSample>, DatasetError>
 
 /// Parses the text of an accelerometer file; `path` is only used in messages.
 pub fn parse_accelerometer(text: &str, path: &Path) -> Result<Vec<AccelSample>, DatasetError> {
-    let mut out: Vec<AccelSample> = Vec::new();
+    parse_samples(text, path, ["ax", "ay", "az"])
+}
+
+/// Reads a gyroscope file; errors as [`read_accelerometer`]'s.
+pub fn read_gyroscope(path: &Path) -> Result<Vec<GyroSample>, DatasetError> {
+    parse_samples(&read_text(path)?, path, ["wx", "wy", "wz"])
+}
+
+/// Time-sorted three-axis samples; `axes` names the columns in messages.
+fn parse_samples(
+    text: &str,
+    path: &Path,
+    axes: [&str; 3],
+) -> Result<Vec<(f64, Vector3<f64>)>, DatasetError> {
+    let [a0, a1, a2] = axes;
+    let mut out: Vec<(f64, Vector3<f64>)> = Vec::new();
     for dl in data_lines(text) {
         let [t, ax, ay, az] = dl.exact_fields::<4>().map_err(|n| {
             DatasetError::parse(
                 path,
                 dl.line,
-                format!("expected 4 fields (timestamp ax ay az), found {n}"),
+                format!("expected 4 fields (timestamp {a0} {a1} {a2}), found {n}"),
             )
         })?;
         let t = parse_finite(path, dl.line, "timestamp", t)?;
         let f = Vector3::new(
-            parse_finite(path, dl.line, "ax", ax)?,
-            parse_finite(path, dl.line, "ay", ay)?,
-            parse_finite(path, dl.line, "az", az)?,
+            parse_finite(path, dl.line, a0, ax)?,
+            parse_finite(path, dl.line, a1, ay)?,
+            parse_finite(path, dl.line, a2, az)?,
         );
         if out.last().is_some_and(|(prev, _)| t <= *prev) {
             return Err(DatasetError::parse(
@@ -56,6 +75,15 @@ pub fn write_accelerometer(path: &Path, samples: &[AccelSample]) -> Result<(), D
     let mut s = String::from("# accelerometer: timestamp ax ay az (m/s^2, specific force in the camera frame: x right, y down, z forward)\n");
     for (t, f) in samples {
         let _ = writeln!(s, "{t:.6} {:.5} {:.5} {:.5}", f.x, f.y, f.z);
+    }
+    write_atomic(path, s.as_bytes()).map_err(|e| DatasetError::io(path, e))
+}
+
+/// Writes samples as `gyroscope.txt` (atomically).
+pub fn write_gyroscope(path: &Path, samples: &[GyroSample]) -> Result<(), DatasetError> {
+    let mut s = String::from("# gyroscope: timestamp wx wy wz (rad/s, angular velocity in the camera frame: x right, y down, z forward)\n");
+    for (t, w) in samples {
+        let _ = writeln!(s, "{t:.6} {:.6} {:.6} {:.6}", w.x, w.y, w.z);
     }
     write_atomic(path, s.as_bytes()).map_err(|e| DatasetError::io(path, e))
 }
@@ -84,5 +112,18 @@ mod tests {
             err.contains("accelerometer.txt:2:") && err.contains("sorted"),
             "{err}"
         );
+        let dir = std::env::temp_dir().join(format!("stride-gyro-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let g = dir.join("gyroscope.txt");
+        write_gyroscope(&g, &[(1.0, Vector3::new(0.1, -0.2, 0.3))]).unwrap();
+        let back = read_gyroscope(&g).unwrap();
+        assert_eq!(back, vec![(1.0, Vector3::new(0.1, -0.2, 0.3))]);
+        std::fs::write(&g, "1.0 0 0\n").unwrap();
+        let err = read_gyroscope(&g).unwrap_err().to_string();
+        assert!(
+            err.contains("gyroscope.txt:1:") && err.contains("wx wy wz"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -75,6 +75,15 @@ impl Sequence {
         }
     }
 
+    /// The gyroscope samples (angular velocity in the camera frame), when present (TUM
+    /// folders only: an MCAP log's IMU topic is read for its accelerometer alone).
+    pub fn gyroscope(&self) -> Option<&[crate::accelerometer::GyroSample]> {
+        match self {
+            Self::Tum(s) => s.gyroscope.as_deref(),
+            Self::Mcap(_) => None,
+        }
+    }
+
     /// Number of associated frames.
     pub fn len(&self) -> usize {
         match self {

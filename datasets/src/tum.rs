@@ -93,6 +93,9 @@ pub struct TumSequence {
     /// `accelerometer.txt` (specific force in the camera frame, see
     /// [`crate::accelerometer`]), when the folder has one.
     pub accelerometer: Option<Vec<crate::accelerometer::AccelSample>>,
+    /// `gyroscope.txt` (angular velocity in the camera frame, see
+    /// [`crate::accelerometer`]), when the folder has one.
+    pub gyroscope: Option<Vec<crate::accelerometer::GyroSample>>,
     /// Colour images left without a depth partner.
     pub unmatched_rgb: usize,
 }
@@ -247,6 +250,12 @@ impl TumSequence {
         } else {
             None
         };
+        let gyro_path = dir.join("gyroscope.txt");
+        let gyroscope = if gyro_path.is_file() {
+            Some(crate::accelerometer::read_gyroscope(&gyro_path)?)
+        } else {
+            None
+        };
         Ok(Self {
             dir: dir.to_path_buf(),
             camera,
@@ -255,6 +264,7 @@ impl TumSequence {
             frames,
             groundtruth,
             accelerometer,
+            gyroscope,
         })
     }
 

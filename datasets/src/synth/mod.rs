@@ -45,6 +45,13 @@ pub const GRAVITY_M_S2: f64 = 9.80665;
 pub const ACCELEROMETER_HZ: f64 = 100.0;
 /// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
 pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
+/// Gyroscope samples per second written by the lab.
+pub const GYROSCOPE_HZ: f64 = 200.0;
+/// Standard deviation of the gyroscope's white noise (rad/s, per axis and sample): a MEMS
+/// gyroscope's 3e-4 rad/s/sqrt(Hz) (0.017 deg/s/sqrt(Hz), a BMI088's datasheet figure)
+/// over 100 Hz of bandwidth. No bias: the lab's runs are seconds long, where a bias stays
+/// constant and the robot's calibration at rest removes it.
+pub const GYROSCOPE_NOISE_RAD_S: f64 = 0.003;
 use nalgebra::Isometry3;
 use render::{Renderer, Visibility};
 use scene::Scene;
@@ -194,6 +201,36 @@ impl Synth {
             / (H_S * H_S);
         let f_world = acceleration + nalgebra::Vector3::new(0.0, 0.0, GRAVITY_M_S2);
         b.rotation.inverse() * f_world
+    }
+
+    /// What a gyroscope on the camera reads `t` seconds after the first frame: the
+    /// camera's angular velocity in its own frame (rad/s), from the motion over +-1 ms.
+    pub fn angular_velocity(&self, t: f64) -> nalgebra::Vector3<f64> {
+        const H_S: f64 = 0.001;
+        let (a, b) = (
+            self.state(t - H_S).world_from_camera,
+            self.state(t + H_S).world_from_camera,
+        );
+        (a.rotation.inverse() * b.rotation).scaled_axis() / (2.0 * H_S)
+    }
+
+    /// The gyroscope's samples over the sequence: [`Self::angular_velocity`] at
+    /// [`GYROSCOPE_HZ`] with seeded Gaussian noise ([`GYROSCOPE_NOISE_RAD_S`]), on the
+    /// frames' clock (s).
+    pub fn gyroscope(&self) -> Vec<crate::accelerometer::GyroSample> {
+        let cfg = &self.config;
+        let mut rng = stride_core::rng::SplitMix64::new(cfg.seed ^ 0x6E20_5C0E);
+        let duration_s = cfg.frames.saturating_sub(1) as f64 / cfg.fps;
+        // One sample past the last frame, so that its time lies between two samples.
+        let n = (duration_s * GYROSCOPE_HZ).ceil() as usize + 2;
+        (0..n)
+            .map(|k| {
+                let t = k as f64 / GYROSCOPE_HZ;
+                let noise = nalgebra::Vector3::new(rng.normal(), rng.normal(), rng.normal())
+                    * GYROSCOPE_NOISE_RAD_S;
+                (cfg.start_time_s + t, self.angular_velocity(t) + noise)
+            })
+            .collect()
     }
 
     /// A renderer for this scene.

@@ -178,6 +178,7 @@ fn generate_into(
         &dir.join("accelerometer.txt"),
         &accelerometer(synth, cfg),
     )?;
+    crate::accelerometer::write_gyroscope(&dir.join("gyroscope.txt"), &synth.gyroscope())?;
     write(
         &dir.join("camera.json"),
         CameraConfig {
