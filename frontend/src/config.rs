@@ -138,6 +138,12 @@ pub struct VoConfig {
     /// shutter.
     #[serde(skip)]
     pub rolling_shutter_s: f64,
+    /// With a rolling shutter and a gyroscope ([`VisualOdometry::add_gyroscope`]), the
+    /// readout's angular velocity is the gyroscope's at the frame's time instead of the
+    /// last frame interval's (see `crate::gyro`).
+    ///
+    /// [`VisualOdometry::add_gyroscope`]: crate::VisualOdometry::add_gyroscope
+    pub readout_gyroscope: bool,
     /// Seed of RANSAC's sampling.
     pub seed: u64,
 }
@@ -424,6 +430,7 @@ impl Default for VoConfig {
             depth_alignment: true,
             keyframe_depth_link_inliers: 60,
             rolling_shutter_s: 0.0,
+            readout_gyroscope: true,
             seed: 1,
         }
     }

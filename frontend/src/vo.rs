@@ -78,8 +78,10 @@ pub struct VisualOdometry {
     pub(crate) rng: SplitMix64,
     /// ORB features of the recent keyframes, for the wide-baseline recovery.
     pub(crate) recent: RecentKeyframes,
-    /// The camera's motion during this frame's readout (rolling shutter).
+    /// The camera's motion during this frame's readout (rolling shutter), and the
+    /// gyroscope's samples for it.
     pub(crate) shutter: ShutterMotion,
+    pub(crate) gyro: crate::gyro::Gyro,
     /// The keyframes relocalization searches: a saved map's (the first frame is localized
     /// in them) and this run's.
     pub(crate) places: PlaceMemory,
@@ -109,13 +111,13 @@ impl VisualOdometry {
             world_from_prev: Isometry3::identity(),
             last_motion: None,
             kf_tracks: 0,
-
             kf_pyramids: Vec::new(),
             kf_count: 0,
             kf_first: 0,
             next_id: 0,
             recent: RecentKeyframes::new()?,
             shutter: ShutterMotion::default(),
+            gyro: crate::gyro::Gyro::default(),
             places: PlaceMemory::new()?,
         })
     }
@@ -240,10 +242,8 @@ impl VisualOdometry {
 
         // 1. Predict and track.
         let prev_from_pred = self.predicted_prev_from_cur(frame.t_s);
-        let rows = self.camera.height();
-        let readout_s = self.config.rolling_shutter_s;
         self.shutter =
-            ShutterMotion::new(readout_s, rows, &prev_from_pred, frame.t_s - self.prev_t);
+            self.readout_motion(&prev_from_pred, frame.t_s - self.prev_t, frame.t_s, true);
         let world_from_pred = self.world_from_prev * prev_from_pred;
         let pred_from_world = world_from_pred.inverse();
         let from: Vec<Point2f> = self.tracks.iter().map(|t| t.px).collect();
@@ -377,7 +377,7 @@ impl VisualOdometry {
             if estimated {
                 let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
                 let dt = frame.t_s - self.prev_t;
-                self.shutter = ShutterMotion::new(readout_s, rows, &prev_from_cur, dt);
+                self.shutter = self.readout_motion(&prev_from_cur, dt, frame.t_s, false);
             }
             let odometry = OdometryLink {
                 previous_id: self.kf_count.saturating_sub(1),
@@ -537,7 +537,7 @@ impl VisualOdometry {
             return first;
         };
         let prev_from_cur = self.world_from_prev.inverse() * e.ref_from_cur;
-        let shutter = ShutterMotion::new(readout, self.camera.height(), &prev_from_cur, dt);
+        let shutter = self.readout_motion(&prev_from_cur, dt, frame.t_s, false);
         let tracks = first.alive.iter().map(|(t, _)| t.clone()).collect();
         let again = self.measure_tracks(frame, tracks, &shutter);
         let flags = again

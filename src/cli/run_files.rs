@@ -408,6 +408,11 @@ fn report_json(
     let segments = out.segments();
     m.insert("segments".into(), json!(segments.len()));
     m.insert("segment_frames".into(), json!(segments));
+    let (used, missed) = out.gyroscope_frames;
+    m.insert(
+        "gyroscope_frames".into(),
+        json!({"used": used, "not_covered": missed}),
+    );
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());

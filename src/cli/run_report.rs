@@ -167,6 +167,13 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 g("frames_lost"),
             ],
             vec!["skipped (could not load)".into(), g("frames_skipped")],
+            vec![
+                "rolling shutter corrected with the gyroscope / not covered by it".into(),
+                format!(
+                    "{} / {}",
+                    j["gyroscope_frames"]["used"], j["gyroscope_frames"]["not_covered"]
+                ),
+            ],
             vec!["keyframes".into(), g("keyframes")],
             vec![
                 "frames/s, whole SLAM (decoding excluded)".into(),

@@ -140,6 +140,11 @@ pub struct RunOutput {
     pub backend: Option<BackendSummary>,
     /// The world frame every pose and point of this output is in.
     pub world: WorldFrame,
+    /// Frames whose rolling-shutter correction took a gyroscope's angular velocity, and
+    /// frames a gyroscope given did not cover (see [`Pipeline::add_gyroscope`]).
+    ///
+    /// [`Pipeline::add_gyroscope`]: crate::Pipeline::add_gyroscope
+    pub gyroscope_frames: (usize, usize),
 }
 
 impl RunOutput {

@@ -17,6 +17,9 @@ pub fn run_sequence(
     mut on_frame: impl FnMut(&FrameRecord),
 ) -> Result<PipelineOutput, PipelineError> {
     let mut pipeline = Pipeline::new(seq.camera(), config)?;
+    if let Some(samples) = seq.gyroscope() {
+        pipeline.add_gyroscope(samples);
+    }
     for item in seq.stream(max_frames, DECODE_AHEAD) {
         let record = match item {
             Ok(d) => pipeline.process(&d.frame, d.decode_s)?,

@@ -119,6 +119,12 @@ impl Slam {
         self
     }
 
+    /// Adds gyroscope samples for the rolling-shutter correction
+    /// ([`stride_frontend::VisualOdometry::add_gyroscope`]).
+    pub fn add_gyroscope(&mut self, samples: &[stride_datasets::accelerometer::GyroSample]) {
+        self.vo.add_gyroscope(samples);
+    }
+
     /// Looks for the floor in the depth of the first frames and of keyframes, unless the
     /// world frame is given.
     fn look_for_floor(&mut self, frame: &RgbdFrame, keyframe: bool) {
@@ -337,6 +343,7 @@ impl Slam {
             wall_s: 0.0,
             backend,
             world: WorldFrame::first_camera(),
+            gyroscope_frames: self.vo.gyroscope_frames(),
         };
         let world = self.world.or_else(|| {
             let poses = out.final_poses();

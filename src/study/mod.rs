@@ -176,6 +176,7 @@ pub fn run(
     config.odometry.seed = spec.seed;
     let depth_alignment = config.odometry.depth_alignment;
     let mut pipeline = Pipeline::new(&sc.camera, config)?;
+    pipeline.add_gyroscope(&synth.gyroscope());
     let renderer = synth.renderer();
     let (mut gt, mut per_frame) = (Trajectory::new(), Vec::with_capacity(spec.frames));
     let (mut t0, mut depth_aligned) = (None, 0usize);
