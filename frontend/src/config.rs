@@ -139,7 +139,7 @@ pub struct VoConfig {
     #[serde(skip)]
     pub rolling_shutter_s: f64,
     /// With a rolling shutter and a gyroscope ([`VisualOdometry::add_gyroscope`]), the
-    /// readout's angular velocity is the gyroscope's at the frame's time instead of the
+    /// readout's angular velocity is the gyroscope's mean over the readout instead of the
     /// last frame interval's (see `crate::gyro`).
     ///
     /// [`VisualOdometry::add_gyroscope`]: crate::VisualOdometry::add_gyroscope

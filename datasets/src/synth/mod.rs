@@ -221,8 +221,8 @@ impl Synth {
         let cfg = &self.config;
         let mut rng = stride_core::rng::SplitMix64::new(cfg.seed ^ 0x6E20_5C0E);
         let duration_s = cfg.frames.saturating_sub(1) as f64 / cfg.fps;
-        // One sample past the last frame, so that its time lies between two samples.
-        let n = (duration_s * GYROSCOPE_HZ).ceil() as usize + 2;
+        // Samples 50 ms past the last frame, so that its readout lies between samples.
+        let n = ((duration_s + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
         (0..n)
             .map(|k| {
                 let t = k as f64 / GYROSCOPE_HZ;
