@@ -19,6 +19,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The SLAM with bundle adjustment, the world found from the floor, and the elevation
     // map on the optimized poses: every stage's defaults.
     let mut pipeline = Pipeline::new(&seq.camera, PipelineConfig::default())?;
+    // A robot's gyroscope (here the folder's gyroscope.txt, when it has one) sharpens the
+    // rolling-shutter correction; a driver may also hand samples over as they arrive.
+    if let Some(samples) = &seq.gyroscope {
+        pipeline.add_gyroscope(samples);
+    }
     for (n, decoded) in seq.stream(max_frames, 4).enumerate() {
         let decoded = decoded?;
         let record = pipeline.process(&decoded.frame, decoded.decode_s)?;
