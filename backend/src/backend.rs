@@ -114,6 +114,11 @@ pub struct Backend {
     pub(crate) places: crate::loop_closure::Places,
 }
 
+/// Whether an information matrix can weigh an edge: finite and positive definite.
+fn usable_information(info: &Matrix6<f64>) -> bool {
+    info.iter().all(|v| v.is_finite()) && info.cholesky().is_some()
+}
+
 /// The information of a frontend pose estimate, moved into the optimizer's tangent space;
 /// `fallback` when the estimate has none (a predicted pose).
 fn odometry_information(
@@ -122,8 +127,7 @@ fn odometry_information(
     fallback: (f64, f64),
 ) -> Matrix6<f64> {
     let info = tangent_information(world_from_camera, info_left);
-    let usable = info.iter().all(|v| v.is_finite()) && info.cholesky().is_some();
-    if usable {
+    if usable_information(&info) {
         info
     } else {
         diagonal_information(fallback)
@@ -145,7 +149,7 @@ impl Backend {
         // A right perturbation of the keyframe's pose does not depend on the frame the
         // link starts from: the link's tangent information holds after composing.
         let information = tangent_information(&l.previous_from_this, &l.information);
-        let usable = information.iter().all(|v| v.is_finite()) && information.cholesky().is_some();
+        let usable = usable_information(&information);
         if usable {
             self.pose_edges.push(KeyframeEdge {
                 from: previous,

@@ -72,18 +72,39 @@ fn parse_samples(
 
 /// Writes samples as `accelerometer.txt` (atomically).
 pub fn write_accelerometer(path: &Path, samples: &[AccelSample]) -> Result<(), DatasetError> {
-    let mut s = String::from("# accelerometer: timestamp ax ay az (m/s^2, specific force in the camera frame: x right, y down, z forward)\n");
-    for (t, f) in samples {
-        let _ = writeln!(s, "{t:.6} {:.5} {:.5} {:.5}", f.x, f.y, f.z);
-    }
-    write_atomic(path, s.as_bytes()).map_err(|e| DatasetError::io(path, e))
+    write_samples(
+        path,
+        "# accelerometer: timestamp ax ay az (m/s^2, specific force in the camera frame: x right, y down, z forward)",
+        samples,
+        5,
+    )
 }
 
 /// Writes samples as `gyroscope.txt` (atomically).
 pub fn write_gyroscope(path: &Path, samples: &[GyroSample]) -> Result<(), DatasetError> {
-    let mut s = String::from("# gyroscope: timestamp wx wy wz (rad/s, angular velocity in the camera frame: x right, y down, z forward)\n");
-    for (t, w) in samples {
-        let _ = writeln!(s, "{t:.6} {:.6} {:.6} {:.6}", w.x, w.y, w.z);
+    write_samples(
+        path,
+        "# gyroscope: timestamp wx wy wz (rad/s, angular velocity in the camera frame: x right, y down, z forward)",
+        samples,
+        6,
+    )
+}
+
+/// Writes a header line and one `timestamp x y z` line per sample (`decimals` after the
+/// point), atomically.
+fn write_samples(
+    path: &Path,
+    header: &str,
+    samples: &[(f64, Vector3<f64>)],
+    decimals: usize,
+) -> Result<(), DatasetError> {
+    let mut s = format!("{header}\n");
+    for (t, v) in samples {
+        let _ = writeln!(
+            s,
+            "{t:.6} {:.*} {:.*} {:.*}",
+            decimals, v.x, decimals, v.y, decimals, v.z
+        );
     }
     write_atomic(path, s.as_bytes()).map_err(|e| DatasetError::io(path, e))
 }

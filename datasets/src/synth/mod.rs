@@ -214,21 +214,54 @@ impl Synth {
         (a.rotation.inverse() * b.rotation).scaled_axis() / (2.0 * H_S)
     }
 
+    /// The accelerometer's samples over the sequence: [`Self::specific_force`] at
+    /// [`ACCELEROMETER_HZ`] with seeded Gaussian noise ([`ACCELEROMETER_NOISE_M_S2`]), on
+    /// the frames' clock (s).
+    pub fn accelerometer(&self) -> Vec<crate::accelerometer::AccelSample> {
+        let n = (self.duration_s() * ACCELEROMETER_HZ).floor() as usize + 1;
+        self.noisy_samples(
+            n,
+            ACCELEROMETER_HZ,
+            ACCELEROMETER_NOISE_M_S2,
+            0xACCE_1E20,
+            |t| self.specific_force(t),
+        )
+    }
+
     /// The gyroscope's samples over the sequence: [`Self::angular_velocity`] at
     /// [`GYROSCOPE_HZ`] with seeded Gaussian noise ([`GYROSCOPE_NOISE_RAD_S`]), on the
     /// frames' clock (s).
     pub fn gyroscope(&self) -> Vec<crate::accelerometer::GyroSample> {
-        let cfg = &self.config;
-        let mut rng = stride_core::rng::SplitMix64::new(cfg.seed ^ 0x6E20_5C0E);
-        let duration_s = cfg.frames.saturating_sub(1) as f64 / cfg.fps;
         // Samples 50 ms past the last frame, so that its readout lies between samples.
-        let n = ((duration_s + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
+        let n = ((self.duration_s() + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
+        self.noisy_samples(n, GYROSCOPE_HZ, GYROSCOPE_NOISE_RAD_S, 0x6E20_5C0E, |t| {
+            self.angular_velocity(t)
+        })
+    }
+
+    /// Time from the first frame to the last (s).
+    fn duration_s(&self) -> f64 {
+        self.config.frames.saturating_sub(1) as f64 / self.config.fps
+    }
+
+    /// `n` samples of `read(t)` at `hz` from the first frame on, each with Gaussian noise
+    /// of standard deviation `sigma` per axis (seeded by the run's seed and `salt`), time
+    /// stamped on the frames' clock (s).
+    fn noisy_samples(
+        &self,
+        n: usize,
+        hz: f64,
+        sigma: f64,
+        salt: u64,
+        read: impl Fn(f64) -> nalgebra::Vector3<f64>,
+    ) -> Vec<(f64, nalgebra::Vector3<f64>)> {
+        let mut rng = stride_core::rng::SplitMix64::new(self.config.seed ^ salt);
         (0..n)
             .map(|k| {
-                let t = k as f64 / GYROSCOPE_HZ;
-                let noise = nalgebra::Vector3::new(rng.normal(), rng.normal(), rng.normal())
-                    * GYROSCOPE_NOISE_RAD_S;
-                (cfg.start_time_s + t, self.angular_velocity(t) + noise)
+                let t = k as f64 / hz;
+                let noise =
+                    nalgebra::Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma;
+                (self.config.start_time_s + t, read(t) + noise)
             })
             .collect()
     }

@@ -176,7 +176,7 @@ fn generate_into(
     crate::trajectory_file::write_tum_trajectory(&dir.join("groundtruth.txt"), &gt)?;
     crate::accelerometer::write_accelerometer(
         &dir.join("accelerometer.txt"),
-        &accelerometer(synth, cfg),
+        &synth.accelerometer(),
     )?;
     crate::accelerometer::write_gyroscope(&dir.join("gyroscope.txt"), &synth.gyroscope())?;
     write(
@@ -248,20 +248,4 @@ fn generate_into(
         step_hz: synth.motion().step_hz(),
         groundtruth: gt,
     })
-}
-
-/// The accelerometer's samples over the sequence: [`Synth::specific_force`] at
-/// [`super::ACCELEROMETER_HZ`] with seeded Gaussian noise, on the frames' clock.
-fn accelerometer(synth: &Synth, cfg: &SynthConfig) -> Vec<crate::accelerometer::AccelSample> {
-    let mut rng = stride_core::rng::SplitMix64::new(cfg.seed ^ 0xACCE_1E20);
-    let duration_s = cfg.frames.saturating_sub(1) as f64 / cfg.fps;
-    let n = (duration_s * super::ACCELEROMETER_HZ).floor() as usize + 1;
-    (0..n)
-        .map(|k| {
-            let t = k as f64 / super::ACCELEROMETER_HZ;
-            let noise = nalgebra::Vector3::new(rng.normal(), rng.normal(), rng.normal())
-                * super::ACCELEROMETER_NOISE_M_S2;
-            (cfg.start_time_s + t, synth.specific_force(t) + noise)
-        })
-        .collect()
 }
