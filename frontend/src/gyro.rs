@@ -23,6 +23,9 @@ use nalgebra::{Isometry3, Vector3};
 /// rate is not interpolated (the interval's motion is used, and the frame counted).
 pub const MAX_GAP_S: f64 = 0.05;
 
+/// How long samples are kept before the latest frame (s).
+const KEEP_S: f64 = 1.0;
+
 /// The gyroscope's samples and what they were used for.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Gyro {
@@ -48,6 +51,13 @@ impl Gyro {
         }
         let a = (t_s - t0) / (t1 - t0);
         Some(w0 * (1.0 - a) + w1 * a)
+    }
+
+    /// Drops the samples before `t_s`, keeping the last one before it (the left end of
+    /// an interpolation at `t_s`).
+    fn forget_before(&mut self, t_s: f64) {
+        let k = self.samples.partition_point(|(t, _)| *t < t_s);
+        self.samples.drain(..k.saturating_sub(1));
     }
 
     /// The mean angular velocity over `[t0, t1]` (the rate linear between samples), when
@@ -122,6 +132,11 @@ impl VisualOdometry {
             }
             _ => self.gyro.missed += usize::from(count),
         }
+        if count {
+            // Frames come in time order: samples well before this one are not needed again
+            // (a long run's samples would otherwise grow without bound).
+            self.gyro.forget_before(t_s - KEEP_S);
+        }
         motion
     }
 }
@@ -148,5 +163,9 @@ mod tests {
         let m = g.mean(0.0, 0.01).unwrap();
         assert!((m - Vector3::new(0.5, -1.0, 0.25)).norm() < 1e-12);
         assert!(g.mean(0.005, 0.1).is_none(), "its end is in the gap");
+        let mut g = g;
+        g.forget_before(0.1);
+        assert_eq!(g.samples.len(), 2, "the sample before 0.1 s stays");
+        assert!(g.at(0.1).is_none() && g.at(0.2).is_some());
     }
 }
