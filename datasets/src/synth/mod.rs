@@ -45,13 +45,14 @@ pub const GRAVITY_M_S2: f64 = 9.80665;
 pub const ACCELEROMETER_HZ: f64 = 100.0;
 /// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
 pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
-/// Gyroscope samples per second written by the lab.
-pub const GYROSCOPE_HZ: f64 = 200.0;
+/// Gyroscope samples per second written by the lab: 400 Hz, a common output rate of the
+/// IMUs on legged robots and RGB-D cameras (a RealSense D435i offers 200 or 400 Hz).
+pub const GYROSCOPE_HZ: f64 = 400.0;
 /// Standard deviation of the gyroscope's white noise (rad/s, per axis and sample): a MEMS
 /// gyroscope's 3e-4 rad/s/sqrt(Hz) (0.017 deg/s/sqrt(Hz), a BMI088's datasheet figure)
-/// over 100 Hz of bandwidth. No bias: the lab's runs are seconds long, where a bias stays
-/// constant and the robot's calibration at rest removes it.
-pub const GYROSCOPE_NOISE_RAD_S: f64 = 0.003;
+/// over the 200 Hz of bandwidth of 400 Hz samples. No bias: the lab's runs are seconds
+/// long, where a bias stays constant and the robot's calibration at rest removes it.
+pub const GYROSCOPE_NOISE_RAD_S: f64 = 0.004;
 use nalgebra::Isometry3;
 use render::{Renderer, Visibility};
 use scene::Scene;
@@ -204,14 +205,17 @@ impl Synth {
     }
 
     /// What a gyroscope on the camera reads `t` seconds after the first frame: the
-    /// camera's angular velocity in its own frame (rad/s), from the motion over +-1 ms.
+    /// camera's mean angular velocity in its own frame (rad/s) over the sample period
+    /// around `t` (the rotation from `t - 1/(2 GYROSCOPE_HZ)` to `t + 1/(2 GYROSCOPE_HZ)`
+    /// over that time). A MEMS gyroscope low-passes its rate before it delivers samples;
+    /// the rate at one instant would alias the gait's impact vibration into the samples.
     pub fn angular_velocity(&self, t: f64) -> nalgebra::Vector3<f64> {
-        const H_S: f64 = 0.001;
+        let h_s = 0.5 / GYROSCOPE_HZ;
         let (a, b) = (
-            self.state(t - H_S).world_from_camera,
-            self.state(t + H_S).world_from_camera,
+            self.state(t - h_s).world_from_camera,
+            self.state(t + h_s).world_from_camera,
         );
-        (a.rotation.inverse() * b.rotation).scaled_axis() / (2.0 * H_S)
+        (a.rotation.inverse() * b.rotation).scaled_axis() / (2.0 * h_s)
     }
 
     /// The accelerometer's samples over the sequence: [`Self::specific_force`] at
