@@ -28,6 +28,10 @@ pub struct ShutterMotion {
     pub omega_rad_s: Vector3<f64>,
     /// Linear velocity of the camera in its own frame (m/s).
     pub v_m_s: Vector3<f64>,
+    /// The rotation over the readout integrated from a gyroscope, when one covers it: it
+    /// replaces the constant `omega_rad_s` (a gait's foot impacts change the rate within
+    /// the readout).
+    pub rotations: Option<RowRotations>,
 }
 
 impl ShutterMotion {
@@ -50,18 +54,52 @@ impl ShutterMotion {
             mid_row: f64::from(rows - 1) / 2.0,
             omega_rad_s: prev_from_cur.rotation.scaled_axis() / dt_s,
             v_m_s: prev_from_cur.translation.vector / dt_s,
+            rotations: None,
         }
     }
 
     /// `p_camera` (m), measured in image row `v_px`, expressed in the camera frame at the
-    /// frame's time: `cam(t) <- cam(t + s)` with `s` the row's delay, which under constant
-    /// velocity is the rotation by `omega s` followed by the translation `v s`.
+    /// frame's time: `cam(t) <- cam(t + s)` with `s` the row's delay, which is the rotation
+    /// by `omega s` (or the gyroscope's integrated rotation) followed by the translation
+    /// `v s`.
     pub fn to_frame_time(&self, p_camera: Point3<f64>, v_px: f64) -> Point3<f64> {
         let s = (v_px - self.mid_row) * self.row_s;
         if s == 0.0 {
             return p_camera;
         }
-        UnitQuaternion::from_scaled_axis(self.omega_rad_s * s) * p_camera + self.v_m_s * s
+        let frame_from_row = match &self.rotations {
+            Some(r) => r.at(s),
+            None => UnitQuaternion::from_scaled_axis(self.omega_rad_s * s),
+        };
+        frame_from_row * p_camera + self.v_m_s * s
+    }
+}
+
+/// Knots of [`RowRotations`] over the readout: 1.25 ms apart over a 20 ms readout.
+pub const ROTATION_KNOTS: usize = 17;
+
+/// The camera's rotation from the frame's time `t` to evenly spaced instants over the
+/// readout, `cam(t) <- cam(t + s_i)` with `s_i = first_s + i step_s` (s), the middle knot
+/// at `s = 0`; between knots the rotation is interpolated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowRotations {
+    /// Delay of the first knot (s; negative: the top row is read before the frame's time).
+    pub first_s: f64,
+    /// Time between knots (s).
+    pub step_s: f64,
+    /// `cam(t) <- cam(t + s_i)` for each knot.
+    pub frame_from_knot: [UnitQuaternion<f64>; ROTATION_KNOTS],
+}
+
+impl RowRotations {
+    /// `cam(t) <- cam(t + s_s)`, interpolated between the knots around `s_s` (clamped to
+    /// the readout).
+    pub fn at(&self, s_s: f64) -> UnitQuaternion<f64> {
+        let last = ROTATION_KNOTS - 1;
+        let x = ((s_s - self.first_s) / self.step_s).clamp(0.0, last as f64);
+        let i = (x.floor() as usize).min(last - 1);
+        let (a, b) = (self.frame_from_knot[i], self.frame_from_knot[i + 1]);
+        a.slerp(&b, x - i as f64)
     }
 }
 
