@@ -98,8 +98,13 @@ impl RowRotations {
         let last = ROTATION_KNOTS - 1;
         let x = ((s_s - self.first_s) / self.step_s).clamp(0.0, last as f64);
         let i = (x.floor() as usize).min(last - 1);
-        let (a, b) = (self.frame_from_knot[i], self.frame_from_knot[i + 1]);
-        a.slerp(&b, x - i as f64)
+        let (a, b) = match (self.frame_from_knot.get(i), self.frame_from_knot.get(i + 1)) {
+            (Some(a), Some(b)) => (a, b),
+            _ => return UnitQuaternion::identity(), // i < last by the clamp above
+        };
+        // Along the geodesic from a to b (no slerp: it panics on opposite rotations, which
+        // a corrupt rate could integrate to).
+        a * UnitQuaternion::from_scaled_axis((a.inverse() * b).scaled_axis() * (x - i as f64))
     }
 }
 
