@@ -280,6 +280,7 @@ fn the_accelerometer_gives_the_world_its_z_axis_where_the_ground_is_not_level() 
                 .unwrap(),
             depth_scale: 5000.0,
             rolling_shutter_s: 0.0,
+            exposure_s: 0.0,
         },
         frames: 60,
         blur: false,

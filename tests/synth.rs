@@ -22,6 +22,7 @@ fn small_camera() -> CameraConfig {
         camera: PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240).unwrap(),
         depth_scale: 5000.0,
         rolling_shutter_s: 0.02,
+        exposure_s: 0.0,
     }
 }
 
@@ -235,6 +236,7 @@ fn output_loads_unchanged_in_the_readers_and_is_deterministic() {
             camera: PinholeCamera::new(129.3, 129.1, 79.3, 59.8, 160, 120).unwrap(),
             depth_scale: 5000.0,
             rolling_shutter_s: 0.02,
+            exposure_s: 0.0,
         },
         frames: 6,
         ..SynthConfig::default()

@@ -316,6 +316,7 @@ fn rolling_shutter_correction_makes_a_shaky_walk_more_accurate() {
             camera: PinholeCamera::new(258.65, 258.23, 159.3, 127.6, 320, 240).unwrap(),
             depth_scale: 5000.0,
             rolling_shutter_s: 0.03,
+            exposure_s: 0.0,
         },
         frames: 60,
         motion: MotionConfig {

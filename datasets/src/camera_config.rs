@@ -5,7 +5,8 @@
 //! (raw depth units per metre: 5000 for TUM's 16-bit PNGs) and optionally
 //! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0) and
 //! `rolling_shutter_s` (the colour camera's readout time, top row to bottom row, in seconds;
-//! 0 or absent for a global shutter). Unknown keys are ignored, so a file can carry notes or
+//! 0 or absent for a global shutter) and `exposure_s` (the colour camera's exposure time per
+//! row, in seconds; 0 or absent when unknown). Unknown keys are ignored, so a file can carry notes or
 //! extra calibration.
 //!
 //! A `.yaml`/`.yml` file in ORB-SLAM2 or ORB-SLAM3 settings format (`%YAML:1.0`,
@@ -28,6 +29,9 @@ pub struct CameraConfig {
     /// frame's timestamp being the middle row's time; 0 for a global shutter (and for every
     /// preset: the TUM benchmark does not publish it).
     pub rolling_shutter_s: f64,
+    /// Exposure time of each colour row (s): a moving camera's keypoint sits where the
+    /// scene was on average over it. 0 when unknown (and for every preset).
+    pub exposure_s: f64,
 }
 
 /// TUM's depth scale: 16-bit depth PNGs hold 5000 units per metre.
@@ -47,6 +51,8 @@ struct CameraFile {
     distortion: Option<Vec<f64>>,
     #[serde(default, skip_serializing_if = "is_zero")]
     rolling_shutter_s: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    exposure_s: f64,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -82,6 +88,7 @@ impl CameraConfig {
             camera,
             depth_scale: TUM_DEPTH_SCALE,
             rolling_shutter_s: 0.0,
+            exposure_s: 0.0,
         })
     }
 
@@ -152,6 +159,7 @@ impl CameraConfig {
             depth_scale: c.depth_scale,
             distortion,
             rolling_shutter_s: 0.0,
+            exposure_s: 0.0,
         }
         .into_config()
         .map_err(|message| DatasetError::invalid(path, message))
@@ -170,6 +178,7 @@ impl CameraConfig {
             depth_scale: self.depth_scale,
             distortion: c.distortion().map(|d| d.to_array().to_vec()),
             rolling_shutter_s: self.rolling_shutter_s,
+            exposure_s: self.exposure_s,
         };
         // Serialising plain numbers cannot fail.
         serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -229,10 +238,17 @@ impl CameraFile {
                 self.rolling_shutter_s
             ));
         }
+        if !(self.exposure_s.is_finite() && (0.0..=0.5).contains(&self.exposure_s)) {
+            return Err(format!(
+                "exposure_s = {} is invalid: must be an exposure time from 0 to 0.5 s",
+                self.exposure_s
+            ));
+        }
         Ok(CameraConfig {
             camera,
             depth_scale: self.depth_scale,
             rolling_shutter_s: self.rolling_shutter_s,
+            exposure_s: self.exposure_s,
         })
     }
 }
@@ -300,7 +316,7 @@ mod tests {
     }
 
     #[test]
-    fn the_rolling_shutter_readout_is_read_written_and_checked() {
+    fn the_rolling_shutter_readout_and_the_exposure_are_read_written_and_checked() {
         let text = |rs: &str| {
             format!(
                 r#"{{"fx": 500, "fy": 500, "cx": 320, "cy": 240, "width": 640, "height": 480,
@@ -323,6 +339,17 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("rolling_shutter_s = -1"));
+        // The exposure, the same way: absent is 0 (unknown), written back when known.
+        assert_eq!(global.exposure_s, 0.0);
+        assert!(!global.to_json().contains("exposure_s"));
+        let exposed = CameraConfig::from_text(&text(r#", "exposure_s": 0.02"#), path).unwrap();
+        assert_eq!(exposed.exposure_s, 0.02);
+        assert_eq!(
+            CameraConfig::from_text(&exposed.to_json(), path).unwrap(),
+            exposed
+        );
+        let err = CameraConfig::from_text(&text(r#", "exposure_s": 2"#), path).unwrap_err();
+        assert!(err.to_string().contains("exposure_s = 2"), "{err}");
     }
 
     #[test]

@@ -138,6 +138,11 @@ pub struct VoConfig {
     /// shutter.
     #[serde(skip)]
     pub rolling_shutter_s: f64,
+    /// Exposure time of each colour row (s), 0 when unknown. With a rolling shutter and a
+    /// gyroscope, a keypoint is taken to sit where the scene was on average over its row's
+    /// exposure (a blurred image's features do), not at the row's mid-exposure instant.
+    #[serde(skip)]
+    pub exposure_s: f64,
     /// With a rolling shutter and a gyroscope ([`VisualOdometry::add_gyroscope`]), the
     /// readout's angular velocity is the gyroscope's mean over the readout instead of the
     /// last frame interval's (see `crate::gyro`).
@@ -379,6 +384,12 @@ impl VoConfig {
             (0.0..=0.1).contains(&c.rolling_shutter_s),
             "0 to 0.1 (s)",
         )?;
+        check(
+            "exposure_s",
+            c.exposure_s,
+            (0.0..=0.5).contains(&c.exposure_s),
+            "0 to 0.5 (s)",
+        )?;
         Ok(())
     }
 
@@ -430,6 +441,7 @@ impl Default for VoConfig {
             depth_alignment: true,
             keyframe_depth_link_inliers: 60,
             rolling_shutter_s: 0.0,
+            exposure_s: 0.0,
             readout_gyroscope: true,
             seed: 1,
         }

@@ -64,11 +64,9 @@ impl ShutterMotion {
     /// `v s`.
     pub fn to_frame_time(&self, p_camera: Point3<f64>, v_px: f64) -> Point3<f64> {
         let s = (v_px - self.mid_row) * self.row_s;
-        if s == 0.0 {
-            return p_camera;
-        }
         let frame_from_row = match &self.rotations {
             Some(r) => r.at(s),
+            None if s == 0.0 => return p_camera,
             None => UnitQuaternion::from_scaled_axis(self.omega_rad_s * s),
         };
         frame_from_row * p_camera + self.v_m_s * s
@@ -80,7 +78,9 @@ pub const ROTATION_KNOTS: usize = 17;
 
 /// The camera's rotation from the frame's time `t` to evenly spaced instants over the
 /// readout, `cam(t) <- cam(t + s_i)` with `s_i = first_s + i step_s` (s), the middle knot
-/// at `s = 0`; between knots the rotation is interpolated.
+/// at `s = 0`; between knots the rotation is interpolated. With a known exposure, each
+/// knot holds the mean rotation over the exposure centred on its instant (where a blurred
+/// keypoint sits), so even the middle knot may differ from the identity.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RowRotations {
     /// Delay of the first knot (s; negative: the top row is read before the frame's time).

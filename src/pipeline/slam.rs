@@ -51,8 +51,8 @@ pub struct Slam {
 }
 
 impl Slam {
-    /// The odometry for `camera` (its rolling-shutter readout time replaces the one in
-    /// `config`), and the back end beside it when `backend` is given. With a `saved` map,
+    /// The odometry for `camera` (its rolling-shutter readout and exposure times replace
+    /// the ones in `config`), and the back end beside it when `backend` is given. With a `saved` map,
     /// the first frame is relocalized in it and the back end extends it.
     pub fn new(
         camera: &CameraConfig,
@@ -62,6 +62,7 @@ impl Slam {
     ) -> Result<Self, PipelineError> {
         let config = VoConfig {
             rolling_shutter_s: camera.rolling_shutter_s,
+            exposure_s: camera.exposure_s,
             ..config
         };
         let camera = camera.camera;

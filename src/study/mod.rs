@@ -175,7 +175,7 @@ pub fn run(
     let mut config = config.clone();
     config.odometry.seed = spec.seed;
     let depth_alignment = config.odometry.depth_alignment;
-    let mut pipeline = Pipeline::new(&sc.camera, config)?;
+    let mut pipeline = Pipeline::new(&synth.camera_config(), config)?;
     pipeline.add_gyroscope(&synth.gyroscope());
     let renderer = synth.renderer();
     let (mut gt, mut per_frame) = (Trajectory::new(), Vec::with_capacity(spec.frames));

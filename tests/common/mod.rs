@@ -58,6 +58,7 @@ pub fn quarter_vga(rolling_shutter_s: f64) -> stride_datasets::camera_config::Ca
             .unwrap(),
         depth_scale: 5000.0,
         rolling_shutter_s,
+        exposure_s: 0.0,
     }
 }
 

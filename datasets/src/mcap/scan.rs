@@ -179,6 +179,7 @@ pub fn camera_from_info(info: &CameraInfoMsg) -> Result<CameraConfig, String> {
         camera,
         depth_scale: super::REP118_DEPTH_UNITS_PER_M,
         rolling_shutter_s: 0.0,
+        exposure_s: 0.0,
     })
 }
 

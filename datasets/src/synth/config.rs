@@ -46,7 +46,8 @@ pub struct SynthConfig {
     pub blur: bool,
     /// Exposure time (s), at most one frame period.
     pub exposure_s: f64,
-    /// The camera (rendered as an ideal pinhole; distortion is not simulated).
+    /// The camera (rendered as an ideal pinhole; distortion is not simulated). Its
+    /// `exposure_s` is not read: the lab's exposure is the field above.
     pub camera: CameraConfig,
     /// Depth sensor model.
     pub depth_noise: DepthNoise,
@@ -72,6 +73,7 @@ impl Default for SynthConfig {
             camera: PinholeCamera::KINECT_DEFAULT,
             depth_scale: 5000.0,
             rolling_shutter_s: 0.0,
+            exposure_s: 0.0,
         });
         // A 20 ms rolling-shutter readout, as on PrimeSense/Kinect colour cameras.
         let camera = CameraConfig {

@@ -53,6 +53,7 @@ pub const GYROSCOPE_HZ: f64 = 400.0;
 /// over the 200 Hz of bandwidth of 400 Hz samples. No bias: the lab's runs are seconds
 /// long, where a bias stays constant and the robot's calibration at rest removes it.
 pub const GYROSCOPE_NOISE_RAD_S: f64 = 0.004;
+use crate::camera_config::CameraConfig;
 use nalgebra::Isometry3;
 use render::{Renderer, Visibility};
 use scene::Scene;
@@ -181,6 +182,18 @@ impl Synth {
     /// The rendering camera (ideal pinhole).
     pub fn camera(&self) -> &PinholeCamera {
         &self.camera
+    }
+
+    /// The camera as the lab describes it to a SLAM (camera.json): the rendering camera,
+    /// its depth scale and readout, and the exposure when the frames are blurred over it
+    /// (0 without blur: each frame is then one instant).
+    pub fn camera_config(&self) -> CameraConfig {
+        let cfg = &self.config;
+        CameraConfig {
+            camera: self.camera,
+            exposure_s: if cfg.blur { cfg.exposure_s } else { 0.0 },
+            ..cfg.camera
+        }
     }
 
     /// The robot's state at `t` seconds after the first frame.

@@ -2,7 +2,6 @@
 
 use super::motion::{Gait, PathKind};
 use super::{FrameInfo, Synth, SynthConfig, SynthError, TerrainSource};
-use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use crate::grid_file::{relief_png, write_header, write_layer};
 use crate::png_io::{encode_depth_u16, encode_rgb};
@@ -181,12 +180,7 @@ fn generate_into(
     crate::accelerometer::write_gyroscope(&dir.join("gyroscope.txt"), &synth.gyroscope())?;
     write(
         &dir.join("camera.json"),
-        CameraConfig {
-            camera: *synth.camera(),
-            ..cfg.camera
-        }
-        .to_json()
-        .as_bytes(),
+        synth.camera_config().to_json().as_bytes(),
     )?;
     let elevation = synth.ground_truth_elevation();
     write_layer(&dir.join("terrain.npy"), &elevation)?;
