@@ -198,6 +198,8 @@ fn a_ros2_log_written_by_the_python_mcap_packages_is_read_exactly() {
         .expect("/imu is in the colour frame: used");
     assert_eq!(acc.len(), 4);
     assert_eq!(acc[2].1.x, 0.2);
+    // Its angular velocity is given (zero, covariance zero, not -1): a gyroscope too.
+    assert_eq!(seq.gyroscope.as_ref().map(Vec::len), Some(4));
     for (k, item) in seq.stream(None, 2).enumerate() {
         let f = item.unwrap().frame;
         let ns = 123_456_789 + k as u64 * 33_333_333;

@@ -75,12 +75,11 @@ impl Sequence {
         }
     }
 
-    /// The gyroscope samples (angular velocity in the camera frame), when present (TUM
-    /// folders only: an MCAP log's IMU topic is read for its accelerometer alone).
+    /// The gyroscope samples (angular velocity in the camera frame), when present.
     pub fn gyroscope(&self) -> Option<&[crate::accelerometer::GyroSample]> {
         match self {
             Self::Tum(s) => s.gyroscope.as_deref(),
-            Self::Mcap(_) => None,
+            Self::Mcap(s) => s.gyroscope.as_deref(),
         }
     }
 

@@ -95,11 +95,12 @@ pub fn run(a: ConvertArgs) -> Result<()> {
         );
     };
     crate::outln!(
-        "{} colour and {} depth images, {} accelerometer samples, {} ground-truth poses \
-         written to {} in {:.1} s",
+        "{} colour and {} depth images, {} accelerometer and {} gyroscope samples, {} \
+         ground-truth poses written to {} in {:.1} s",
         counts.rgb,
         counts.depth,
         counts.imu,
+        counts.gyroscope,
         counts.groundtruth,
         a.to.display(),
         started.elapsed().as_secs_f64()

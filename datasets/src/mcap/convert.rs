@@ -3,8 +3,10 @@
 //! TUM to MCAP: every line of `rgb.txt` and `depth.txt` becomes an image message stamped
 //! with the line's time to the microsecond (TUM's six decimals, digit for digit;
 //! `header.stamp` and `log_time`); the camera a
-//! `CameraInfo` message on [`DEFAULT_CAMERA_INFO_TOPIC`]; `accelerometer.txt` `Imu`
-//! messages (linear acceleration only, in the camera's frame); `groundtruth.txt`
+//! `CameraInfo` message on [`DEFAULT_CAMERA_INFO_TOPIC`]; `accelerometer.txt` and
+//! `gyroscope.txt` `Imu` messages (linear acceleration only, angular velocity only: the
+//! other field's covariance starts with -1, ROS's "not given"; in the camera's frame);
+//! `groundtruth.txt`
 //! `TFMessage`s from [`GROUNDTRUTH_PARENT`] to [`GROUNDTRUTH_CHILD`] on [`TF_TOPIC`].
 //! Depth keeps the folder's raw 16-bit units; the depth channel's metadata
 //! ([`DEPTH_UNITS_KEY`]) says how many make a metre. Images are written raw (`rgb8`,
@@ -12,7 +14,7 @@
 //!
 //! MCAP to TUM: the colour and depth topics' messages become PNGs named by their stamps,
 //! listed in `rgb.txt` and `depth.txt`; the camera becomes `camera.json`, the accelerometer
-//! `accelerometer.txt`, the ground truth `groundtruth.txt`. The folder is staged and
+//! `accelerometer.txt`, the gyroscope `gyroscope.txt`, the ground truth `groundtruth.txt`. The folder is staged and
 //! published whole; the MCAP file is written to a temporary sibling and renamed.
 
 use super::images::{self, ImagePayload};
@@ -64,6 +66,8 @@ pub struct ConvertCounts {
     pub depth: usize,
     /// Accelerometer samples.
     pub imu: usize,
+    /// Gyroscope samples.
+    pub gyroscope: usize,
     /// Ground-truth poses.
     pub groundtruth: usize,
 }
@@ -201,8 +205,11 @@ fn fill_log(
         depth: depth.len(),
         ..ConvertCounts::default()
     };
-    if let Some(acc) = &seq.accelerometer {
-        let ch = channel(Ros2Type::Imu, DEFAULT_IMU_TOPIC, &[])?;
+    // One IMU channel for the accelerometer's and the gyroscope's messages.
+    let ch_imu = (seq.accelerometer.is_some() || seq.gyroscope.is_some())
+        .then(|| channel(Ros2Type::Imu, DEFAULT_IMU_TOPIC, &[]))
+        .transpose()?;
+    if let (Some(acc), Some(ch)) = (&seq.accelerometer, ch_imu) {
         for (t, a) in acc {
             let stamp = Time::from_seconds(*t);
             let m = ImuMsg {
@@ -217,6 +224,23 @@ fn fill_log(
             all.push((stamp, 3, ch, Pending::Ready(m.encode())));
         }
         counts.imu = acc.len();
+    }
+    if let (Some(gyro), Some(ch)) = (&seq.gyroscope, ch_imu) {
+        // Gyroscope-only messages on the same topic (their own rate): no acceleration.
+        for (t, w) in gyro {
+            let stamp = Time::from_seconds(*t);
+            let m = ImuMsg {
+                header: header(stamp),
+                orientation: [0.0, 0.0, 0.0, 1.0],
+                orientation_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                angular_velocity: [w.x, w.y, w.z],
+                angular_velocity_covariance: [0.0; 9],
+                linear_acceleration: [0.0; 3],
+                linear_acceleration_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            };
+            all.push((stamp, 3, ch, Pending::Ready(m.encode())));
+        }
+        counts.gyroscope = gyro.len();
     }
     if let Some(gt) = &seq.groundtruth {
         let ch = channel(Ros2Type::TfMessage, TF_TOPIC, &[])?;
@@ -364,6 +388,10 @@ pub fn mcap_to_tum(seq: &McapSequence, out: &Path) -> Result<ConvertCounts, Data
     if let Some(acc) = &seq.accelerometer {
         crate::accelerometer::write_accelerometer(&dir.join("accelerometer.txt"), acc)?;
         counts.imu = acc.len();
+    }
+    if let Some(gyro) = &seq.gyroscope {
+        crate::accelerometer::write_gyroscope(&dir.join("gyroscope.txt"), gyro)?;
+        counts.gyroscope = gyro.len();
     }
     if let Some(gt) = &seq.groundtruth {
         crate::trajectory_file::write_tum_trajectory(&dir.join("groundtruth.txt"), gt)?;

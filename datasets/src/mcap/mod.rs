@@ -3,8 +3,9 @@
 //!
 //! A log is read in one streaming pass when it is opened ([`McapSequence::open`]): the
 //! stamps of the colour and depth topics (from each message's `header.stamp`), the camera
-//! from a `sensor_msgs/CameraInfo` topic, the accelerometer from a `sensor_msgs/Imu` topic
-//! and a ground truth from `tf2_msgs/TFMessage` transforms between two named frames. Colour
+//! from a `sensor_msgs/CameraInfo` topic, the accelerometer and the gyroscope from a
+//! `sensor_msgs/Imu` topic (a field whose covariance starts with -1 is not given) and a
+//! ground truth from `tf2_msgs/TFMessage` transforms between two named frames. Colour
 //! and depth are then paired by time as TUM's `associate.py` pairs a folder's images, and
 //! [`McapSequence::stream`] decodes the pairs ahead on a background thread in a second
 //! streaming pass. Memory is bounded by the messages waiting for their partner, not by the
@@ -128,6 +129,9 @@ pub struct McapSequence {
     pub groundtruth: Option<Trajectory>,
     /// The accelerometer (specific force in the camera frame), when the log has it.
     pub accelerometer: Option<Vec<crate::accelerometer::AccelSample>>,
+    /// The gyroscope (angular velocity in the camera frame), when the log's IMU messages
+    /// carry it.
+    pub gyroscope: Option<Vec<crate::accelerometer::GyroSample>>,
     /// Colour images left without a depth partner.
     pub unmatched_rgb: usize,
     /// Whether the colour and the depth topics carry `CompressedImage`s.
@@ -213,6 +217,7 @@ impl McapSequence {
             frames,
             groundtruth: scanned.groundtruth,
             accelerometer: scanned.accelerometer,
+            gyroscope: scanned.gyroscope,
             compressed: [scanned.rgb_compressed, scanned.depth_compressed],
         })
     }

@@ -7,7 +7,7 @@ use super::{
     image_kind, McapTopics, DEFAULT_CAMERA_INFO_TOPIC, DEFAULT_IMU_TOPIC, DEPTH_UNITS_KEY,
 };
 use super::{GROUNDTRUTH_CHILD, GROUNDTRUTH_PARENT};
-use crate::accelerometer::AccelSample;
+use crate::accelerometer::{AccelSample, GyroSample};
 use crate::camera_config::CameraConfig;
 use crate::error::DatasetError;
 use nalgebra::Vector3;
@@ -149,6 +149,7 @@ pub(super) struct Scanned {
     pub camera: Option<(CameraConfig, String)>,
     pub groundtruth: Option<Trajectory>,
     pub accelerometer: Option<Vec<AccelSample>>,
+    pub gyroscope: Option<Vec<GyroSample>>,
 }
 
 /// A camera from a `CameraInfo` message (plumb-bob distortion or none).
@@ -242,6 +243,7 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
     let mut camera = None;
     let mut rgb_frame_id = None;
     let mut imu: Vec<AccelSample> = Vec::new();
+    let mut gyro: Vec<GyroSample> = Vec::new();
     let mut imu_frame_id = None;
     let mut gt = Vec::new();
     let mut seen: BTreeMap<String, String> = BTreeMap::new();
@@ -298,11 +300,17 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
             )?;
             let m = ImuMsg::decode(data).map_err(|e| bad(e.to_string()))?;
             imu_frame_id.get_or_insert_with(|| m.header.frame_id.clone());
-            let a = m.linear_acceleration;
-            imu.push((
-                stamp_s(m.header.stamp, message.log_time),
-                Vector3::new(a[0], a[1], a[2]),
-            ));
+            // ROS's convention: -1 in a covariance's first element marks a field the
+            // message does not carry (a gyroscope-only or accelerometer-only sample).
+            let t = stamp_s(m.header.stamp, message.log_time);
+            if m.linear_acceleration_covariance[0] != -1.0 {
+                let a = m.linear_acceleration;
+                imu.push((t, Vector3::new(a[0], a[1], a[2])));
+            }
+            if m.angular_velocity_covariance[0] != -1.0 {
+                let w = m.angular_velocity;
+                gyro.push((t, Vector3::new(w[0], w[1], w[2])));
+            }
         } else if channel.message_encoding == "cdr"
             && Ros2Type::from_name(&schema_name(channel)) == Some(Ros2Type::TfMessage)
         {
@@ -345,14 +353,15 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
         }
     }
     if let Some(t) = &topics.imu {
-        if imu.is_empty() {
+        if imu.is_empty() && gyro.is_empty() {
             return Err(missing("IMU", t));
         }
     }
     // The default IMU topic counts only when it is in the colour camera's frame.
     let imu_usable =
         topics.imu.is_some() || (imu_frame_id.is_some() && imu_frame_id == rgb_frame_id);
-    if !imu.is_empty() && !imu_usable {
+    let has_imu = !(imu.is_empty() && gyro.is_empty());
+    if has_imu && !imu_usable {
         tracing::warn!(
             "{}: {imu_topic} is in frame {:?}, not the colour camera's {:?}: not used for \
              the world frame (pass --imu-topic to use it as the camera's)",
@@ -370,6 +379,7 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
     rgb.sort_by(|a, b| a.0.total_cmp(&b.0));
     depth.sort_by(|a, b| a.0.total_cmp(&b.0));
     imu.sort_by(|a, b| a.0.total_cmp(&b.0));
+    gyro.sort_by(|a, b| a.0.total_cmp(&b.0));
     gt.sort_by(|a, b| a.0.total_cmp(&b.0));
     let groundtruth = if gt.is_empty() {
         None
@@ -382,7 +392,7 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
     Ok(Scanned {
         topics: McapTopics {
             camera_info: camera.as_ref().map(|c| c.1.clone()),
-            imu: (imu_usable && !imu.is_empty()).then(|| imu_topic.clone()),
+            imu: (imu_usable && has_imu).then(|| imu_topic.clone()),
             groundtruth_tf: groundtruth
                 .as_ref()
                 .map(|_| (gt_parent.clone(), gt_child.clone())),
@@ -396,5 +406,6 @@ pub(super) fn scan_sequence(path: &Path, topics: &McapTopics) -> Result<Scanned,
         camera,
         groundtruth,
         accelerometer: (imu_usable && !imu.is_empty()).then_some(imu),
+        gyroscope: (imu_usable && !gyro.is_empty()).then_some(gyro),
     })
 }
