@@ -104,7 +104,7 @@ fn the_real_side_blurs_recorded_frames_along_their_motion() {
         assert_eq!(r["frames"].as_u64(), Some(60));
         assert_eq!(r["unreadable"].as_u64(), Some(0));
         // The mitigation is on by default; frames it placed count as tracked.
-        assert_eq!(r["depth_alignment"], true, "{r}");
+        assert_eq!(r["mitigation"], true, "{r}");
         assert!(r["depth_aligned"].as_u64().unwrap() <= r["tracked"].as_u64().unwrap());
     }
     let num = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap();

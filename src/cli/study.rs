@@ -67,9 +67,12 @@ pub struct BlurStudyArgs {
     /// (never a project dependency; a TUM --real folder only).
     #[arg(long, value_name = "PYTHON", requires = "real")]
     orbslam3: Option<PathBuf>,
-    /// The blur mitigation: frames whose colour image the features cannot place are placed
-    /// by their depth (the odometry's `depth_alignment`). `both` runs every sequence with it
-    /// off and on and tables them side by side.
+    /// The blur mitigations: frames whose colour image the features cannot place are
+    /// placed by their depth (odometry key `depth_alignment`), and each colour row's
+    /// rotation comes from the gyroscope, over the readout and the exposure
+    /// (`readout_gyroscope`). `on` runs them as configured (each can be switched off in
+    /// `--config`), `off` turns both off, `both` runs every sequence off and on and tables
+    /// them side by side.
     #[arg(long, value_enum, default_value_t = Mitigation::On)]
     mitigation: Mitigation,
     #[command(flatten)]
@@ -83,19 +86,19 @@ pub struct BlurStudyArgs {
     quiet: bool,
 }
 
-/// Which runs have the blur mitigation on.
+/// Which runs have the blur mitigations on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Mitigation {
-    /// Off (the odometry as it was before the mitigation).
+    /// Off (the odometry without its blur mitigations).
     Off,
-    /// On (the default configuration).
+    /// On (as configured).
     On,
     /// Each sequence twice: off, then on.
     Both,
 }
 
 impl Mitigation {
-    /// The `depth_alignment` settings to run.
+    /// The settings to run (see `stride::study::with_mitigation`).
     fn settings(self) -> Vec<bool> {
         match self {
             Mitigation::Off => vec![false],
@@ -177,19 +180,18 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         !a.quiet,
     );
     let mut runs = Vec::with_capacity(specs.len());
-    for (spec, &depth_alignment) in specs
+    for (spec, &mitigation) in specs
         .iter()
         .flat_map(|s| mitigations.iter().map(move |m| (s, m)))
     {
-        let mut config = config.clone();
-        config.odometry.depth_alignment = depth_alignment;
+        let config = stride::study::with_mitigation(&config, mitigation);
         let r = stride::study::run(spec, &base, &config, || bar.inc(1))?;
         tracing::info!(
             "{} at {:.2} of full speed, seed {}, mitigation {}: ATE {:.2} mm, {} of {} frames tracked ({} by depth), image motion {:.1} px",
             r.gait,
             r.speed_fraction,
             r.seed,
-            on_off(depth_alignment),
+            on_off(mitigation),
             r.ate_m * 1e3,
             r.tracked,
             r.frames,
@@ -303,7 +305,7 @@ fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<St
     for (gait, s, m) in cases {
         let set: Vec<&RunResult> = runs
             .iter()
-            .filter(|r| r.gait == gait && r.speed_fraction == s && r.depth_alignment == m)
+            .filter(|r| r.gait == gait && r.speed_fraction == s && r.mitigation == m)
             .collect();
         if set.is_empty() {
             continue;
@@ -356,7 +358,7 @@ fn report(
     )>,
 ) -> Report {
     // One series per gait, and per mitigation setting when both ran.
-    let both = runs.iter().any(|r| r.depth_alignment) && runs.iter().any(|r| !r.depth_alignment);
+    let both = runs.iter().any(|r| r.mitigation) && runs.iter().any(|r| !r.mitigation);
     let settings: &[Option<bool>] = if both {
         &[Some(false), Some(true)]
     } else {
@@ -370,7 +372,7 @@ fn report(
             .filter_map(|(i, (g, m))| {
                 let mut pts: Vec<(f64, f64)> = runs
                     .iter()
-                    .filter(|r| r.gait == *g && m.is_none_or(|m| r.depth_alignment == m))
+                    .filter(|r| r.gait == *g && m.is_none_or(|m| r.mitigation == m))
                     .map(f)
                     .collect();
                 pts.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -465,7 +467,9 @@ fn report(
              when the odometry estimated it (tracked, recovered, relocalized, or placed by its \
              depth: the mitigation, counted apart as 'by depth'); lost frames were predicted. \
              Mitigation: frames the features lose are placed by aligning their depth with the \
-             last keyframe's (the colour blurs, the depth does not).",
+             last keyframe's (the colour blurs, the depth does not), and each colour row's \
+             rotation is integrated from the lab's gyroscope over the readout and averaged \
+             over the exposure.",
             runs.len(),
             if runs.len() == 1 { "" } else { "s" }
         ));

@@ -14,7 +14,7 @@ use stride_eval::report::Report;
 /// ORB-SLAM3 on the same blurred frames: per blur length (px), the harness's summary.
 pub(crate) type PeerRuns = Vec<(f64, serde_json::Value)>;
 
-/// The real side's runs: each length (px) with each `(seed, depth_alignment)` variant; with
+/// The real side's runs: each length (px) with each `(seed, mitigation)` variant; with
 /// `orbslam3` (the Python of a throwaway venv with the peer), ORB-SLAM3 too, one run per
 /// seed and length, on the same
 /// blurred frames written as a TUM folder (camera `peer_camera`: fr1, fr2 or fr3).
@@ -51,7 +51,7 @@ pub(crate) fn runs(
             tracing::info!(
                 "blur {length_px} px, seed {}, mitigation {}: ATE {:.2} mm, {} of {} frames tracked ({} by depth)",
                 x.seed,
-                super::study::on_off(x.depth_alignment),
+                super::study::on_off(x.mitigation),
                 x.ate_m * 1e3,
                 x.tracked,
                 x.frames,
@@ -156,13 +156,13 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
     let mut lengths: Vec<f64> = runs.iter().map(|r| r.length_px).collect();
     lengths.sort_by(f64::total_cmp);
     lengths.dedup();
-    let mut mitigations: Vec<bool> = runs.iter().map(|r| r.depth_alignment).collect();
+    let mut mitigations: Vec<bool> = runs.iter().map(|r| r.mitigation).collect();
     mitigations.sort();
     mitigations.dedup();
     let mean_ate = |l: f64, m: bool| {
         let set: Vec<f64> = runs
             .iter()
-            .filter(|r| r.length_px == l && r.depth_alignment == m)
+            .filter(|r| r.length_px == l && r.mitigation == m)
             .map(|r| r.ate_m)
             .collect();
         set.iter().sum::<f64>() / set.len().max(1) as f64
@@ -174,7 +174,7 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
         .map(|(l, m)| {
             let set: Vec<&RealRun> = runs
                 .iter()
-                .filter(|r| r.length_px == l && r.depth_alignment == m)
+                .filter(|r| r.length_px == l && r.mitigation == m)
                 .collect();
             let n = set.len().max(1) as f64;
             let worst = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
@@ -245,7 +245,7 @@ pub(crate) fn charts(runs: &[RealRun], peer: &PeerRuns) -> Vec<Chart> {
     let pts = |f: &dyn Fn(&RealRun) -> f64| -> Vec<(f64, f64)> {
         runs.iter().map(|r| (r.length_px, f(r))).collect()
     };
-    let both = runs.iter().any(|r| r.depth_alignment) && runs.iter().any(|r| !r.depth_alignment);
+    let both = runs.iter().any(|r| r.mitigation) && runs.iter().any(|r| !r.mitigation);
     let mut ate: Vec<Series> = match both {
         false => vec![Series::line("stride", PALETTE[0], pts(&|r| r.ate_m * 1e3))],
         true => [false, true]
@@ -253,7 +253,7 @@ pub(crate) fn charts(runs: &[RealRun], peer: &PeerRuns) -> Vec<Chart> {
             .map(|m| {
                 let on: Vec<(f64, f64)> = runs
                     .iter()
-                    .filter(|r| r.depth_alignment == m)
+                    .filter(|r| r.mitigation == m)
                     .map(|r| (r.length_px, r.ate_m * 1e3))
                     .collect();
                 let name = format!("stride, mitigation {}", super::study::on_off(m));
@@ -314,7 +314,8 @@ pub(crate) fn section(
          so that the frame's median blur is the length given; depth as recorded. Length 0 is \
          the sequence as recorded. The SLAM on each with {seeds} RANSAC seed{}. Mitigation \
          on: frames the features lose are placed by aligning their depth with the last \
-         keyframe's ('by depth', counted as tracked); off: they are predicted ('lost').",
+         keyframe's ('by depth', counted as tracked); off: they are predicted ('lost'), \
+         and a gyroscope, had the sequence one, would not be used.",
         if seeds == 1 { "" } else { "s" }
     ));
     if !peer.is_empty() {

@@ -111,9 +111,8 @@ pub struct RunResult {
     pub tracked: usize,
     /// Frames it could not estimate (predicted by constant velocity).
     pub lost: usize,
-    /// Whether the blur mitigation was on: frames the features lose placed by their depth
-    /// (the odometry's `depth_alignment`).
-    pub depth_alignment: bool,
+    /// Whether the blur mitigations were on (see [`with_mitigation`]).
+    pub mitigation: bool,
     /// Frames placed by depth alignment (counted in `tracked`).
     pub depth_aligned: usize,
     /// ATE RMSE after SE(3) alignment (m), evo's definition.
@@ -141,6 +140,19 @@ pub fn gait_name(g: Gait) -> &'static str {
         Gait::Tripod => "tripod",
         Gait::Crawl => "crawl",
     }
+}
+
+/// `config` with the blur mitigations as configured (`on`) or all off: frames the
+/// features lose placed by their depth (odometry key `depth_alignment`), and each colour
+/// row's rotation integrated from the gyroscope over the readout and averaged over the
+/// exposure (`readout_gyroscope`; the real side has no gyroscope).
+pub fn with_mitigation(config: &PipelineConfig, on: bool) -> PipelineConfig {
+    let mut c = config.clone();
+    if !on {
+        c.odometry.depth_alignment = false;
+        c.odometry.readout_gyroscope = false;
+    }
+    c
 }
 
 /// The lab's sequence for a run: a square walk (0.75 m sides, so that the turns of paper
@@ -174,7 +186,7 @@ pub fn run(
     })?;
     let mut config = config.clone();
     config.odometry.seed = spec.seed;
-    let depth_alignment = config.odometry.depth_alignment;
+    let mitigation = config.odometry.depth_alignment || config.odometry.readout_gyroscope;
     let mut pipeline = Pipeline::new(&synth.camera_config(), config)?;
     pipeline.add_gyroscope(&synth.gyroscope());
     let renderer = synth.renderer();
@@ -225,7 +237,7 @@ pub fn run(
         frames: spec.frames,
         tracked,
         lost: spec.frames - tracked,
-        depth_alignment,
+        mitigation,
         depth_aligned,
         ate_m: at.trans_m.rmse,
         rpe_m: rp.trans_m.rmse,

@@ -34,8 +34,8 @@ pub struct RealRun {
     pub lost: usize,
     /// Frames that could not be read (skipped, counted in `lost`).
     pub unreadable: usize,
-    /// Whether the blur mitigation was on (the odometry's `depth_alignment`).
-    pub depth_alignment: bool,
+    /// Whether the blur mitigations were on (see [`super::with_mitigation`]).
+    pub mitigation: bool,
     /// Frames placed by depth alignment (counted in `tracked`).
     pub depth_aligned: usize,
     /// ATE RMSE after SE(3) alignment (m), evo's definition.
@@ -49,7 +49,7 @@ pub struct RealRun {
 }
 
 /// Runs the SLAM (built from `config`, its RANSAC seed and depth alignment replaced by each
-/// of `variants`' `(seed, depth_alignment)`) on the
+/// of `variants`' `(seed, mitigation)`) on the
 /// first `max_frames` frames of `seq` (all when `None`) blurred as `blur` says; `on_frame`
 /// sees each blurred frame (`None` for an unreadable one) before the SLAM does, and can
 /// fail the study (when it writes the frame out, say). `seq` needs a ground truth.
@@ -67,10 +67,9 @@ pub fn run_blurred(
     let camera = &seq.camera().camera;
     let mut pipelines = variants
         .iter()
-        .map(|&(seed, depth_alignment)| {
-            let mut c = config.clone();
+        .map(|&(seed, mitigation)| {
+            let mut c = super::with_mitigation(config, mitigation);
             c.odometry.seed = seed;
-            c.odometry.depth_alignment = depth_alignment;
             Pipeline::new(seq.camera(), c)
         })
         .collect::<Result<Vec<_>, _>>()?;
@@ -121,7 +120,7 @@ pub fn run_blurred(
     }
     let sharpness_median = crate::pipeline::median_p95(sharpness.into_iter()).0;
     let mut runs = Vec::with_capacity(variants.len());
-    for ((p, &(seed, depth_alignment)), (tracked, depth_aligned)) in
+    for ((p, &(seed, mitigation)), (tracked, depth_aligned)) in
         pipelines.into_iter().zip(variants).zip(tracked)
     {
         let traj = p.finish()?.run.trajectory()?;
@@ -134,7 +133,7 @@ pub fn run_blurred(
             tracked,
             lost: frames - tracked,
             unreadable,
-            depth_alignment,
+            mitigation,
             depth_aligned,
             ate_m: at.trans_m.rmse,
             rpe_m: rp.trans_m.rmse,
