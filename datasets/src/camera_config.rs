@@ -6,8 +6,8 @@
 //! `distortion: [k1, k2, p1, p2, k3]` (OpenCV's order; four values mean k3 = 0) and
 //! `rolling_shutter_s` (the colour camera's readout time, top row to bottom row, in seconds;
 //! 0 or absent for a global shutter) and `exposure_s` (the colour camera's exposure time per
-//! row, in seconds; 0 or absent when unknown). Unknown keys are ignored, so a file can carry notes or
-//! extra calibration.
+//! row, in seconds; 0 or absent when unknown). Unknown keys are ignored, so a file can carry
+//! notes or extra calibration.
 //!
 //! A `.yaml`/`.yml` file in ORB-SLAM2 or ORB-SLAM3 settings format (`%YAML:1.0`,
 //! `Camera.fx` or `Camera1.fx`, `DepthMapFactor`) is read too; see

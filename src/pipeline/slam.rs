@@ -52,8 +52,8 @@ pub struct Slam {
 
 impl Slam {
     /// The odometry for `camera` (its rolling-shutter readout and exposure times replace
-    /// the ones in `config`), and the back end beside it when `backend` is given. With a `saved` map,
-    /// the first frame is relocalized in it and the back end extends it.
+    /// the ones in `config`), and the back end beside it when `backend` is given. With a
+    /// `saved` map, the first frame is relocalized in it and the back end extends it.
     pub fn new(
         camera: &CameraConfig,
         config: VoConfig,

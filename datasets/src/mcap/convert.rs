@@ -14,8 +14,9 @@
 //!
 //! MCAP to TUM: the colour and depth topics' messages become PNGs named by their stamps,
 //! listed in `rgb.txt` and `depth.txt`; the camera becomes `camera.json`, the accelerometer
-//! `accelerometer.txt`, the gyroscope `gyroscope.txt`, the ground truth `groundtruth.txt`. The folder is staged and
-//! published whole; the MCAP file is written to a temporary sibling and renamed.
+//! `accelerometer.txt`, the gyroscope `gyroscope.txt`, the ground truth `groundtruth.txt`.
+//! The folder is staged and published whole; the MCAP file is written to a temporary
+//! sibling and renamed.
 
 use super::images::{self, ImagePayload};
 use super::ros2::{
