@@ -143,9 +143,10 @@ pub struct VoConfig {
     /// exposure (a blurred image's features do), not at the row's mid-exposure instant.
     #[serde(skip)]
     pub exposure_s: f64,
-    /// With a rolling shutter and a gyroscope ([`VisualOdometry::add_gyroscope`]), the
-    /// readout's angular velocity is the gyroscope's mean over the readout instead of the
-    /// last frame interval's (see `crate::gyro`).
+    /// With a rolling shutter and a gyroscope ([`VisualOdometry::add_gyroscope`]), each
+    /// colour row's rotation from the frame's time is integrated from the gyroscope over
+    /// the readout (instead of the last frame interval's angular velocity) and averaged
+    /// over the exposure when `exposure_s` is known (see `crate::gyro`).
     ///
     /// [`VisualOdometry::add_gyroscope`]: crate::VisualOdometry::add_gyroscope
     pub readout_gyroscope: bool,
