@@ -73,6 +73,28 @@ pub struct ConvertCounts {
     pub groundtruth: usize,
 }
 
+/// An `Imu` message carrying one vector: the linear acceleration (`linear`) or the angular
+/// velocity; the other field and the orientation are marked not given (-1 first in their
+/// covariances, ROS's convention).
+fn imu_message(header: Header, v: [f64; 3], linear: bool) -> ImuMsg {
+    const NOT_GIVEN: [f64; 9] = [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    let (given, absent) = ((v, [0.0; 9]), ([0.0; 3], NOT_GIVEN));
+    let ((linear_acceleration, linear_acceleration_covariance), angular) = if linear {
+        (given, absent)
+    } else {
+        (absent, given)
+    };
+    ImuMsg {
+        header,
+        orientation: [0.0, 0.0, 0.0, 1.0],
+        orientation_covariance: NOT_GIVEN,
+        angular_velocity: angular.0,
+        angular_velocity_covariance: angular.1,
+        linear_acceleration,
+        linear_acceleration_covariance,
+    }
+}
+
 /// The frame id of the colour camera's optical frame in written messages.
 pub const CAMERA_FRAME_ID: &str = "camera_rgb_optical_frame";
 
@@ -210,38 +232,21 @@ fn fill_log(
     let ch_imu = (seq.accelerometer.is_some() || seq.gyroscope.is_some())
         .then(|| channel(Ros2Type::Imu, DEFAULT_IMU_TOPIC, &[]))
         .transpose()?;
-    if let (Some(acc), Some(ch)) = (&seq.accelerometer, ch_imu) {
-        for (t, a) in acc {
+    // Accelerometer-only and gyroscope-only messages (each at its own rate).
+    for (samples, linear) in [(&seq.accelerometer, true), (&seq.gyroscope, false)] {
+        let (Some(samples), Some(ch)) = (samples, ch_imu) else {
+            continue;
+        };
+        for (t, v) in samples {
             let stamp = Time::from_seconds(*t);
-            let m = ImuMsg {
-                header: header(stamp),
-                orientation: [0.0, 0.0, 0.0, 1.0],
-                orientation_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-                angular_velocity: [0.0; 3],
-                angular_velocity_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-                linear_acceleration: [a.x, a.y, a.z],
-                linear_acceleration_covariance: [0.0; 9],
-            };
+            let m = imu_message(header(stamp), [v.x, v.y, v.z], linear);
             all.push((stamp, 3, ch, Pending::Ready(m.encode())));
         }
-        counts.imu = acc.len();
-    }
-    if let (Some(gyro), Some(ch)) = (&seq.gyroscope, ch_imu) {
-        // Gyroscope-only messages on the same topic (their own rate): no acceleration.
-        for (t, w) in gyro {
-            let stamp = Time::from_seconds(*t);
-            let m = ImuMsg {
-                header: header(stamp),
-                orientation: [0.0, 0.0, 0.0, 1.0],
-                orientation_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-                angular_velocity: [w.x, w.y, w.z],
-                angular_velocity_covariance: [0.0; 9],
-                linear_acceleration: [0.0; 3],
-                linear_acceleration_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-            };
-            all.push((stamp, 3, ch, Pending::Ready(m.encode())));
+        if linear {
+            counts.imu = samples.len();
+        } else {
+            counts.gyroscope = samples.len();
         }
-        counts.gyroscope = gyro.len();
     }
     if let Some(gt) = &seq.groundtruth {
         let ch = channel(Ros2Type::TfMessage, TF_TOPIC, &[])?;
