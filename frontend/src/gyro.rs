@@ -63,7 +63,9 @@ impl Gyro {
     }
 
     /// The mean angular velocity over `[t0, t1]` (the rate linear between samples), when
-    /// the samples cover both ends.
+    /// the samples cover both ends: what one constant rate over the readout would be (the
+    /// tests hold the integrated rotations against it).
+    #[cfg(test)]
     fn mean(&self, t0: f64, t1: f64) -> Option<Vector3<f64>> {
         if t1 <= t0 {
             return self.at(t0);
@@ -155,7 +157,7 @@ impl VisualOdometry {
         }
     }
 
-    /// Frames whose rolling-shutter correction took the gyroscope's angular velocity, and
+    /// Frames whose rolling-shutter correction took the gyroscope's rotation, and
     /// frames the gyroscope's samples did not cover (their correction took the last frame
     /// interval's, as without a gyroscope).
     pub fn gyroscope_frames(&self) -> (usize, usize) {
@@ -163,8 +165,9 @@ impl VisualOdometry {
     }
 
     /// The camera's motion during the readout of the frame at `t_s` (the middle row's
-    /// time): `prev_from_cur` over `dt_s` (constant velocity), its angular velocity
-    /// replaced by the gyroscope's mean over the readout when the samples cover it.
+    /// time): `prev_from_cur` over `dt_s` (constant velocity), its rotation replaced by the
+    /// gyroscope's integrated over the readout (and averaged over the exposure) when the
+    /// samples cover it.
     /// `count` tallies the frame (once per frame).
     pub(crate) fn readout_motion(
         &mut self,
@@ -180,16 +183,12 @@ impl VisualOdometry {
             return motion;
         }
         let (t0, t1) = (t_s - readout / 2.0, t_s + readout / 2.0);
-        match (
-            self.gyro.mean(t0, t1),
-            self.gyro.rotations(t0, t1, self.config.exposure_s),
-        ) {
-            (Some(w), Some(r)) => {
-                motion.omega_rad_s = w;
+        match self.gyro.rotations(t0, t1, self.config.exposure_s) {
+            Some(r) => {
                 motion.rotations = Some(r);
                 self.gyro.used += usize::from(count);
             }
-            _ => self.gyro.missed += usize::from(count),
+            None => self.gyro.missed += usize::from(count),
         }
         if count {
             // Frames come in time order: samples well before this one are not needed again

@@ -140,7 +140,7 @@ pub struct RunOutput {
     pub backend: Option<BackendSummary>,
     /// The world frame every pose and point of this output is in.
     pub world: WorldFrame,
-    /// Frames whose rolling-shutter correction took a gyroscope's angular velocity, and
+    /// Frames whose rolling-shutter correction took a gyroscope's rotation, and
     /// frames a gyroscope given did not cover (see [`Pipeline::add_gyroscope`]).
     ///
     /// [`Pipeline::add_gyroscope`]: crate::Pipeline::add_gyroscope
