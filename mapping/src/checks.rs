@@ -137,7 +137,9 @@ impl<'a> SeeThrough<'a> {
                     .get((row + u - 1) as usize..(row + u + 2) as usize)
             })
             .flatten()
-            .fold(f32::INFINITY, |m, &d| m.min(if d > 0.0 { d } else { 0.0 }));
+            .fold(f32::INFINITY, |m, &d| {
+                crate::neighbourhood::min_of(m, if d > 0.0 { d } else { 0.0 })
+            });
         let d = f64::from(nearest);
         d.is_finite() && d > q.z + 3.0 * self.model.model.sigma_d(d) + self.margin_m
     }

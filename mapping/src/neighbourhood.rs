@@ -46,24 +46,24 @@ impl Neighbourhood {
             let lo = if middle { &mut *min3 } else { &mut *min5 };
             for (m, &d) in lo.iter_mut().skip(R).zip(row) {
                 let ok = (d > 0.0) & (d < f32::INFINITY);
-                *m = m.min(if ok { d } else { f32::INFINITY });
+                *m = min_of(*m, if ok { d } else { f32::INFINITY });
             }
             if span {
                 for (m, &d) in max5.iter_mut().skip(R).zip(row) {
                     let ok = (d > 0.0) & (d < f32::INFINITY);
-                    *m = m.max(if ok { d } else { 0.0 });
+                    *m = max_of(*m, if ok { d } else { 0.0 });
                 }
             }
         }
         for (a, &b) in min5.iter_mut().zip(min3.iter()) {
-            *a = a.min(b);
+            *a = min_of(*a, b);
         }
         // Windows of three (around the middle of five) and of five columns, one shifted
         // slice at a time.
-        window_fold(&mut self.near1, min3, 1..4, w, f32::min);
-        window_fold(&mut self.near2, min5, 0..5, w, f32::min);
+        window_fold(&mut self.near1, min3, 1..4, w, min_of);
+        window_fold(&mut self.near2, min5, 0..5, w, min_of);
         if span {
-            window_fold(&mut self.span2, max5, 0..5, w, f32::max);
+            window_fold(&mut self.span2, max5, 0..5, w, max_of);
             for (s, &lo) in self.span2.iter_mut().zip(&self.near2) {
                 *s = (*s - lo).max(0.0);
             }
@@ -79,6 +79,29 @@ impl Neighbourhood {
             f.clear();
             f.resize(w, f32::INFINITY);
         }
+    }
+}
+
+/// The smaller of two depths that are never NaN (missing returns are infinity or 0 here):
+/// a plain comparison, which compiles to one vector instruction, where `f32::min`'s NaN
+/// rule adds a test and a blend per lane (docs/mapping.md, "Minimum and maximum without
+/// the NaN rule").
+#[inline(always)]
+pub(crate) fn min_of(a: f32, b: f32) -> f32 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
+/// The larger of two depths that are never NaN (see [`min_of`]).
+#[inline(always)]
+fn max_of(a: f32, b: f32) -> f32 {
+    if b > a {
+        b
+    } else {
+        a
     }
 }
 
