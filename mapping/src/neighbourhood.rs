@@ -124,3 +124,44 @@ fn window_fold(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Missing returns are left out whatever their encoding (0, NaN, infinity), so no NaN
+    /// reaches the passes' plain comparisons ([`min_of`]): a hole beside a depth jump gives
+    /// the same nearest depths and span as a 0, and they are those of the depths around it.
+    #[test]
+    fn a_missing_return_is_left_out_however_it_is_encoded() {
+        let fill = |hole: f32| {
+            let mut depth = DepthImage::filled(8, 6, 2.0);
+            for v in 0..6 {
+                for u in 4..8 {
+                    *depth.get_mut(u, v).unwrap() = 1.0;
+                }
+            }
+            *depth.get_mut(3, 2).unwrap() = hole;
+            let mut nb = Neighbourhood::default();
+            nb.fill(&depth, 2, true);
+            (nb.near1, nb.near2, nb.span2)
+        };
+        let zero = fill(0.0);
+        for hole in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0] {
+            let got = fill(hole);
+            assert_eq!(got, zero, "hole encoded as {hole}");
+        }
+        let (near1, near2, span2) = zero;
+        // Pixel 3 (the hole) sees the 1 m side one pixel away, pixel 2 two away, pixel 1 not.
+        assert_eq!(
+            (near1[3], near1[2], near2[2], near2[1]),
+            (1.0, 2.0, 1.0, 2.0)
+        );
+        assert_eq!((span2[0], span2[2], span2[7]), (0.0, 1.0, 0.0));
+        assert!(near1
+            .iter()
+            .chain(&near2)
+            .chain(&span2)
+            .all(|v| !v.is_nan()));
+    }
+}
