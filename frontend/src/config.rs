@@ -150,6 +150,10 @@ pub struct VoConfig {
     ///
     /// [`VisualOdometry::add_gyroscope`]: crate::VisualOdometry::add_gyroscope
     pub readout_gyroscope: bool,
+    /// With a gyroscope, the rotation predicted from one frame to the next (where
+    /// Lucas-Kanade starts each track) is integrated from it instead of the last frame
+    /// interval's (see `crate::gyro`).
+    pub predict_gyroscope: bool,
     /// Seed of RANSAC's sampling.
     pub seed: u64,
 }
@@ -444,6 +448,7 @@ impl Default for VoConfig {
             rolling_shutter_s: 0.0,
             exposure_s: 0.0,
             readout_gyroscope: true,
+            predict_gyroscope: true,
             seed: 1,
         }
     }

@@ -1,4 +1,4 @@
-//! A gyroscope's rotation for the rolling-shutter correction.
+//! A gyroscope's rotation for the rolling-shutter correction and the motion prediction.
 //!
 //! Each keypoint is brought back from its row's time to the frame's with the camera's
 //! motion during the readout ([`ShutterMotion`]). Without an inertial sensor that motion is
@@ -13,6 +13,12 @@
 //! (on that walk, the rotation of a constant mean rate is off each row's by 0.30 px rms,
 //! the integrated 400 Hz gyroscope's by 0.09 px), and the rate at the frame's time alone
 //! made the lab's slow walks worse than the interval's velocity (0.33 -> 0.46 mm ATE).
+//!
+//! The same samples, integrated between two frames' times, give the rotation from one
+//! frame to the next, which the odometry predicts before Lucas-Kanade tracks (the
+//! constant-velocity prediction keeps its translation): at 30 Hz the lab's shake moves the
+//! image 4 px per frame and the pyramid absorbs any guess, but with frames 100-170 ms apart
+//! (dropped frames, a slow camera) the prediction matters (docs/slam.md).
 
 use crate::points::{RowRotations, ShutterMotion, ROTATION_KNOTS};
 use crate::vo::VisualOdometry;
@@ -28,6 +34,26 @@ const ROTATION_SUBSTEPS: usize = 4;
 /// How long samples are kept before the latest frame (s).
 const KEEP_S: f64 = 1.0;
 
+/// Longest integration step of the rotation between two frames (s).
+const PREDICTION_STEP_S: f64 = 0.0025;
+
+/// How many frames took a gyroscope's samples ([`VisualOdometry::add_gyroscope`]), and how
+/// many the samples did not cover (those fell back on the last frame interval's motion, as
+/// without a gyroscope).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct GyroscopeFrames {
+    /// Frames whose rolling-shutter correction took the gyroscope's rotation
+    /// ([`crate::VoConfig::readout_gyroscope`]) ...
+    pub readout: usize,
+    /// ... and frames with a rolling shutter that the samples did not cover.
+    pub readout_not_covered: usize,
+    /// Frames whose predicted rotation came from the gyroscope
+    /// ([`crate::VoConfig::predict_gyroscope`]) ...
+    pub predicted: usize,
+    /// ... and frames whose interval the samples did not cover.
+    pub prediction_not_covered: usize,
+}
+
 /// The gyroscope's samples and what they were used for.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Gyro {
@@ -37,6 +63,10 @@ pub(crate) struct Gyro {
     pub(crate) used: usize,
     /// Frames with a rolling shutter that the samples did not cover.
     pub(crate) missed: usize,
+    /// Frames whose predicted rotation came from the samples, and frames whose interval
+    /// they did not cover (predicted by constant velocity alone).
+    pub(crate) predicted: usize,
+    pub(crate) not_predicted: usize,
 }
 
 impl Gyro {
@@ -86,6 +116,24 @@ impl Gyro {
                 _ => acc,
             });
         Some(integral / (t1 - t0))
+    }
+
+    /// The rotation `cam(t0) <- cam(t1)` integrated from the rate (linear between samples,
+    /// midpoint rule on steps of at most [`PREDICTION_STEP_S`]); `None` unless the samples
+    /// cover `[t0, t1]` and `t1 > t0` (both finite).
+    fn rotation_between(&self, t0: f64, t1: f64) -> Option<UnitQuaternion<f64>> {
+        if !(t0.is_finite() && t1.is_finite()) || t1 <= t0 {
+            return None;
+        }
+        self.at(t0)?;
+        self.at(t1)?;
+        let n = ((t1 - t0) / PREDICTION_STEP_S).ceil().max(1.0) as usize;
+        let h = (t1 - t0) / n as f64;
+        let mut q = UnitQuaternion::identity();
+        for k in 0..n {
+            q *= UnitQuaternion::from_scaled_axis(self.at(t0 + (k as f64 + 0.5) * h)? * h);
+        }
+        Some(q)
     }
 
     /// The rotation over the readout `[t0, t1]` relative to its middle instant,
@@ -146,8 +194,9 @@ impl VisualOdometry {
     /// velocity in its own frame (rad/s; see `stride_datasets::accelerometer` for the
     /// convention). Samples older than the last one held are ignored, so a robot may hand
     /// them over as they arrive; a frame needs samples up to the end of its readout, so
-    /// hand them over before the frame. Used while `readout_gyroscope` is on and the
-    /// camera has a rolling shutter.
+    /// hand them over before the frame. Used for the rolling-shutter correction while
+    /// `readout_gyroscope` is on and the camera has a rolling shutter, and for the rotation
+    /// predicted from frame to frame while `predict_gyroscope` is on.
     pub fn add_gyroscope(&mut self, samples: &[(f64, Vector3<f64>)]) {
         for &(t, w) in samples {
             let newer = self.gyro.samples.last().is_none_or(|(last, _)| t > *last);
@@ -157,11 +206,37 @@ impl VisualOdometry {
         }
     }
 
-    /// Frames whose rolling-shutter correction took the gyroscope's rotation, and
-    /// frames the gyroscope's samples did not cover (their correction took the last frame
-    /// interval's, as without a gyroscope).
-    pub fn gyroscope_frames(&self) -> (usize, usize) {
-        (self.gyro.used, self.gyro.missed)
+    /// What the gyroscope's samples were used for, frame by frame.
+    pub fn gyroscope_frames(&self) -> GyroscopeFrames {
+        GyroscopeFrames {
+            readout: self.gyro.used,
+            readout_not_covered: self.gyro.missed,
+            predicted: self.gyro.predicted,
+            prediction_not_covered: self.gyro.not_predicted,
+        }
+    }
+
+    /// The motion predicted from the previous frame to the frame at `t_s`
+    /// (`prev_from_cur`): the constant-velocity prediction, its rotation replaced by the
+    /// gyroscope's integrated between the two frames' times when `predict_gyroscope` is on
+    /// and the samples cover the interval (counted either way). A walking robot's shake
+    /// turns the camera back and forth within a few frames, which a constant angular
+    /// velocity gets wrong; Lucas-Kanade starts each track from this prediction.
+    pub(crate) fn predicted_with_gyroscope(&mut self, t_s: f64) -> Isometry3<f64> {
+        let cv = self.predicted_prev_from_cur(t_s);
+        if !self.config.predict_gyroscope || self.gyro.samples.is_empty() {
+            return cv;
+        }
+        match self.gyro.rotation_between(self.prev_t, t_s) {
+            Some(r) => {
+                self.gyro.predicted += 1;
+                Isometry3::from_parts(cv.translation, r)
+            }
+            None => {
+                self.gyro.not_predicted += 1;
+                cv
+            }
+        }
     }
 
     /// The camera's motion during the readout of the frame at `t_s` (the middle row's
@@ -225,6 +300,35 @@ mod tests {
         g.forget_before(0.1);
         assert_eq!(g.samples.len(), 2, "the sample before 0.1 s stays");
         assert!(g.at(0.1).is_none() && g.at(0.2).is_some());
+    }
+
+    #[test]
+    fn integrates_the_rotation_between_two_frames() {
+        // A rate about a fixed axis rising from 1 to 4 rad/s over 33 ms at 400 Hz: the angle
+        // between the frames at 2 ms and 35 ms is the rate's integral; a constant rate from
+        // the interval before (1 rad/s) would be off by about a third of it.
+        let axis = Vector3::new(0.6, -0.8, 0.0);
+        let rate = |t: f64| 1.0 + 3.0 * t / 0.033;
+        let samples = (0..=16)
+            .map(|k| {
+                let t = k as f64 * 0.0025;
+                (t, axis * rate(t))
+            })
+            .collect();
+        let g = Gyro {
+            samples,
+            ..Gyro::default()
+        };
+        let (t0, t1) = (0.002, 0.035);
+        let truth = (t1 - t0) * (rate(t0) + rate(t1)) / 2.0;
+        let q = g.rotation_between(t0, t1).unwrap();
+        assert!(
+            (q.scaled_axis() - axis * truth).norm() < 1e-9,
+            "{} against {truth}",
+            q.scaled_axis()
+        );
+        assert!(g.rotation_between(t0, 0.05).is_none(), "past the samples");
+        assert!(g.rotation_between(t1, t0).is_none(), "backwards");
     }
 
     #[test]

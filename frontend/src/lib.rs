@@ -32,6 +32,7 @@ pub mod vo;
 
 pub use config::{InlierTest, VoConfig};
 pub use error::FrontendError;
+pub use gyro::GyroscopeFrames;
 pub use result::{
     DepthLink, FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, StageTimes, TrackingStatus,
 };

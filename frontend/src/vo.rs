@@ -57,7 +57,7 @@ pub struct VisualOdometry {
     pub(crate) camera: PinholeCamera,
     pub(crate) detector: Detector,
     prev: Option<std::rc::Rc<Pyramid>>,
-    prev_t: f64,
+    pub(crate) prev_t: f64,
     pub(crate) tracks: Vec<Track>,
     /// `world_from_camera` of the current keyframe.
     pub(crate) world_from_kf: Isometry3<f64>,
@@ -144,7 +144,7 @@ impl VisualOdometry {
         &self.camera
     }
 
-    fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
+    pub(crate) fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
         match self.last_motion {
             Some((m, dt)) if dt > 0.0 => {
                 scale_motion(&m, ((t_s - self.prev_t) / dt).clamp(0.0, 5.0))
@@ -241,7 +241,7 @@ impl VisualOdometry {
         };
 
         // 1. Predict and track.
-        let prev_from_pred = self.predicted_prev_from_cur(frame.t_s);
+        let prev_from_pred = self.predicted_with_gyroscope(frame.t_s);
         self.shutter =
             self.readout_motion(&prev_from_pred, frame.t_s - self.prev_t, frame.t_s, true);
         let world_from_pred = self.world_from_prev * prev_from_pred;

@@ -408,10 +408,11 @@ fn report_json(
     let segments = out.segments();
     m.insert("segments".into(), json!(segments.len()));
     m.insert("segment_frames".into(), json!(segments));
-    let (used, missed) = out.gyroscope_frames;
+    let g = out.gyroscope_frames;
     m.insert(
         "gyroscope_frames".into(),
-        json!({"used": used, "not_covered": missed}),
+        json!({"used": g.readout, "not_covered": g.readout_not_covered,
+               "predicted": g.predicted, "prediction_not_covered": g.prediction_not_covered}),
     );
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {

@@ -174,6 +174,14 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                     j["gyroscope_frames"]["used"], j["gyroscope_frames"]["not_covered"]
                 ),
             ],
+            vec![
+                "rotation predicted by the gyroscope / not covered by it".into(),
+                format!(
+                    "{} / {}",
+                    j["gyroscope_frames"]["predicted"],
+                    j["gyroscope_frames"]["prediction_not_covered"]
+                ),
+            ],
             vec!["keyframes".into(), g("keyframes")],
             vec![
                 "frames/s, whole SLAM (decoding excluded)".into(),

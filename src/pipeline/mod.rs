@@ -161,7 +161,8 @@ impl Pipeline {
     /// Adds gyroscope samples: time (s, the frames' clock) and the camera's angular
     /// velocity in its own frame (rad/s), in time order, all at once or as they arrive.
     /// With a rolling shutter, each frame's correction then takes each row's rotation,
-    /// integrated from the samples over the readout (odometry key `readout_gyroscope`);
+    /// integrated from the samples over the readout (odometry key `readout_gyroscope`), and
+    /// the rotation predicted from frame to frame comes from them (`predict_gyroscope`);
     /// report.json counts the frames that did and those the samples did not cover.
     pub fn add_gyroscope(&mut self, samples: &[stride_datasets::accelerometer::GyroSample]) {
         self.slam.add_gyroscope(samples);

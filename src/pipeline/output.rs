@@ -140,11 +140,12 @@ pub struct RunOutput {
     pub backend: Option<BackendSummary>,
     /// The world frame every pose and point of this output is in.
     pub world: WorldFrame,
-    /// Frames whose rolling-shutter correction took a gyroscope's rotation, and
-    /// frames a gyroscope given did not cover (see [`Pipeline::add_gyroscope`]).
+    /// What a gyroscope given ([`Pipeline::add_gyroscope`]) was used for: frames whose
+    /// rolling-shutter correction and whose predicted rotation took it, and frames it did
+    /// not cover.
     ///
     /// [`Pipeline::add_gyroscope`]: crate::Pipeline::add_gyroscope
-    pub gyroscope_frames: (usize, usize),
+    pub gyroscope_frames: stride_frontend::GyroscopeFrames,
 }
 
 impl RunOutput {
