@@ -45,6 +45,11 @@ pub struct VoConfig {
     /// and 7.3 mm at 0.6. The odometry alone drifts more with more new points (14.0 mm at
     /// 0.8 against 11.5 mm at 0.6), so [`VoConfig::odometry_only`] keeps 0.6.
     pub redetect_fraction: f64,
+    /// With a gyroscope, a keyframe that only track losses ask for waits while the
+    /// camera's angular rate at the frame is above this many times the median of the
+    /// previous 8 frames' (a foot's impact, which blurs the frame and drops its tracks);
+    /// 0 never waits.
+    pub keyframe_jolt_ratio: f64,
     /// Lucas-Kanade window side (px).
     pub klt_window: i32,
     /// Pyramid levels above the full image.
@@ -215,6 +220,13 @@ impl VoConfig {
             c.min_feature_distance_px,
             pos(f64::from(c.min_feature_distance_px)),
             "positive (px)",
+        )?;
+        check(
+            "keyframe_jolt_ratio",
+            c.keyframe_jolt_ratio,
+            c.keyframe_jolt_ratio == 0.0
+                || (c.keyframe_jolt_ratio > 1.0 && c.keyframe_jolt_ratio.is_finite()),
+            "0 (off), or finite and above 1",
         )?;
         check(
             "redetect_fraction",
@@ -418,6 +430,7 @@ impl Default for VoConfig {
             min_fast_threshold: 7,
             min_feature_distance_px: 8.0,
             redetect_fraction: 0.8,
+            keyframe_jolt_ratio: 3.0,
             klt_window: 13,
             klt_levels: 3,
             klt_iterations: 20,

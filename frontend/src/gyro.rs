@@ -18,7 +18,9 @@
 //! frame to the next, which the odometry predicts before Lucas-Kanade tracks (the
 //! constant-velocity prediction keeps its translation): at 30 Hz the lab's shake moves the
 //! image 4 px per frame and the pyramid absorbs any guess, but with frames 100-170 ms apart
-//! (dropped frames, a slow camera) the prediction matters (docs/slam.md).
+//! (dropped frames, a slow camera) the prediction matters (docs/slam.md). The rate around
+//! each frame also tells the keyframe decision when a foot's impact has jolted the camera
+//! (`crate::keyframe`).
 
 use crate::points::{RowRotations, ShutterMotion, ROTATION_KNOTS};
 use crate::vo::VisualOdometry;
@@ -52,6 +54,9 @@ pub struct GyroscopeFrames {
     pub predicted: usize,
     /// ... and frames whose interval the samples did not cover.
     pub prediction_not_covered: usize,
+    /// Keyframes that lost tracks asked for on a frame the gyroscope showed jolted, and
+    /// that waited for a later frame ([`crate::VoConfig::keyframe_jolt_ratio`]).
+    pub keyframes_deferred: usize,
 }
 
 /// The gyroscope's samples and what they were used for.
@@ -213,7 +218,23 @@ impl VisualOdometry {
             readout_not_covered: self.gyro.missed,
             predicted: self.gyro.predicted,
             prediction_not_covered: self.gyro.not_predicted,
+            keyframes_deferred: self.jolts.deferred,
         }
+    }
+
+    /// The camera's angular rate around the frame at `t_s` (rad/s): the mean norm of the
+    /// gyroscope's rate over the frame's exposure (10 ms when unknown), at its start,
+    /// middle and end; `None` without samples there.
+    pub(crate) fn gyroscope_rate(&self, t_s: f64) -> Option<f64> {
+        let half = 0.5
+            * if self.config.exposure_s > 0.0 {
+                self.config.exposure_s
+            } else {
+                0.01
+            };
+        let norms = [t_s - half, t_s, t_s + half].map(|t| self.gyro.at(t).map(|w| w.norm()));
+        let [a, b, c] = norms;
+        Some((a? + b? + c?) / 3.0)
     }
 
     /// The motion predicted from the previous frame to the frame at `t_s`

@@ -1,17 +1,51 @@
-//! Keyframes of the odometry and the tracks' world points: making a keyframe (new corners
-//! in empty grid cells, ORB descriptors, the features a back end maps) and fusing inlier
+//! Keyframes of the odometry and the tracks' world points: deciding when a frame becomes a
+//! keyframe (waiting out a jolt the gyroscope shows), making one (new corners in empty
+//! grid cells, ORB descriptors, the features a back end maps) and fusing inlier
 //! observations into the points.
 
 use crate::error::FrontendError;
 use crate::features::Detector;
 use crate::klt::Pyramid;
 use crate::points::{measure, Measurement};
-use crate::result::{KeyframeFeature, KeyframeInfo, OdometryLink};
+use crate::result::{KeyframeFeature, KeyframeInfo, OdometryLink, TrackingStatus};
 use crate::vo::VisualOdometry;
 use nalgebra::{Isometry3, Matrix3, Point2};
 use opencv::core::Point2f;
+use std::collections::VecDeque;
 use stride_core::frame::RgbdFrame;
 use stride_core::image::GrayImage;
+
+/// Frames whose angular rate a frame is compared with ([`Jolts`]).
+const JOLT_FRAMES: usize = 8;
+
+/// The recent frames' angular rates from the gyroscope, to tell a jolt of the gait (a
+/// foot's impact, which blurs the frame and drops its tracks) from the walk's sway, and how
+/// many keyframes waited for the jolt to pass.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Jolts {
+    recent: VecDeque<f64>,
+    /// Keyframes that track losses asked for on a jolted frame and that waited.
+    pub(crate) deferred: usize,
+}
+
+impl Jolts {
+    /// Records the camera's angular rate at a frame (rad/s; `None` without a gyroscope);
+    /// whether it is above `ratio` times the median of the previous [`JOLT_FRAMES`]
+    /// frames' (never before there are that many, without a rate, or with `ratio` 0).
+    fn jolted(&mut self, rate_rad_s: Option<f64>, ratio: f64) -> bool {
+        let Some(now) = rate_rad_s.filter(|_| ratio > 0.0) else {
+            return false;
+        };
+        let mut sorted: Vec<f64> = self.recent.iter().copied().collect();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted.get(sorted.len() / 2).copied();
+        self.recent.push_back(now);
+        if self.recent.len() > JOLT_FRAMES {
+            self.recent.pop_front();
+        }
+        sorted.len() == JOLT_FRAMES && median.is_some_and(|m| now > ratio * m)
+    }
+}
 
 /// A track's 3-D point in the odometry's world frame (not to be confused with a back end's
 /// map points, which outlive tracks).
@@ -48,6 +82,33 @@ pub(crate) fn rotate_cov(b_from_a: &Isometry3<f64>, cov: &Matrix3<f64>) -> Matri
 }
 
 impl VisualOdometry {
+    /// Whether the frame at `t_s` becomes a keyframe: when it was not tracked, keeps fewer
+    /// than `keyframe_min_inliers` inliers, has moved or turned beyond the keyframe bounds,
+    /// or keeps fewer than `redetect_fraction` of the keyframe's tracks. The last waits
+    /// while the gyroscope says the frame was jolted (`keyframe_jolt_ratio`): a foot's
+    /// impact that blurs one frame also drops tracks, and a keyframe made there would
+    /// detect its corners and measure its points in the blurriest image.
+    pub(crate) fn keyframe_due(
+        &mut self,
+        (status, inliers, tracked): (TrackingStatus, usize, usize),
+        kf_from_cur: &Isometry3<f64>,
+        t_s: f64,
+    ) -> bool {
+        let rate = self.gyroscope_rate(t_s);
+        let cfg = &self.config;
+        let jolted = self.jolts.jolted(rate, cfg.keyframe_jolt_ratio);
+        let must = status != TrackingStatus::Tracked
+            || inliers < cfg.keyframe_min_inliers
+            || kf_from_cur.translation.vector.norm() > cfg.keyframe_max_translation_m
+            || kf_from_cur.rotation.angle().to_degrees() > cfg.keyframe_max_rotation_deg;
+        let tracks_lost = (tracked as f64) < cfg.redetect_fraction * self.kf_tracks as f64;
+        if tracks_lost && jolted && !must {
+            self.jolts.deferred += 1;
+            return false;
+        }
+        must || tracks_lost
+    }
+
     /// Fuses each inlier's measurement in the current frame into its track's point (or
     /// gives the track a point if it had none).
     pub(crate) fn fuse_observations(
@@ -175,5 +236,27 @@ fn fuse(mp: TrackPoint, obs: Measurement) -> TrackPoint {
         }
     } else {
         mp
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A foot's impact (2 rad/s among frames at 0.1-0.3 rad/s) is a jolt once eight frames
+    /// have been seen; the sway is not, nor is anything without a gyroscope or with the
+    /// ratio 0.
+    #[test]
+    fn an_impact_among_the_sway_is_a_jolt() {
+        let mut j = Jolts::default();
+        let sway = [0.1, 0.2, 0.3, 0.15, 0.25, 0.1, 0.2, 0.3];
+        assert!(!j.jolted(Some(2.0), 3.0), "no history yet");
+        let mut j = Jolts::default();
+        for r in sway {
+            assert!(!j.jolted(Some(r), 3.0));
+        }
+        assert!(j.jolted(Some(2.0), 3.0), "the impact");
+        assert!(!j.jolted(Some(0.4), 3.0), "the sway after it");
+        assert!(!j.jolted(None, 3.0) && !j.jolted(Some(5.0), 0.0));
     }
 }

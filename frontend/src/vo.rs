@@ -67,6 +67,8 @@ pub struct VisualOdometry {
     last_motion: Option<(Isometry3<f64>, f64)>,
     /// Tracks when the current keyframe started.
     pub(crate) kf_tracks: usize,
+    /// The recent frames' angular rates, for the keyframe decision.
+    pub(crate) jolts: crate::keyframe::Jolts,
 
     /// Pyramids of the keyframes that live tracks were detected in, by keyframe number.
     pub(crate) kf_pyramids: Vec<(u64, std::rc::Rc<Pyramid>)>,
@@ -111,6 +113,7 @@ impl VisualOdometry {
             world_from_prev: Isometry3::identity(),
             last_motion: None,
             kf_tracks: 0,
+            jolts: Default::default(),
             kf_pyramids: Vec::new(),
             kf_count: 0,
             kf_first: 0,
@@ -364,11 +367,7 @@ impl VisualOdometry {
         // 4. Keyframe?
         let kf_from_cur = self.world_from_kf.inverse() * world_from_cur;
         let tracked_count = alive.len();
-        let need_kf = status != TrackingStatus::Tracked
-            || inliers < cfg.keyframe_min_inliers
-            || (tracked_count as f64) < cfg.redetect_fraction * self.kf_tracks as f64
-            || kf_from_cur.translation.vector.norm() > cfg.keyframe_max_translation_m
-            || kf_from_cur.rotation.angle().to_degrees() > cfg.keyframe_max_rotation_deg;
+        let need_kf = self.keyframe_due((status, inliers, tracked_count), &kf_from_cur, frame.t_s);
         let mut new_keyframe = None;
         let (tracks, measured): (Vec<Track>, Vec<Option<Measurement>>) = alive.into_iter().unzip();
         self.tracks = tracks;

@@ -412,7 +412,8 @@ fn report_json(
     m.insert(
         "gyroscope_frames".into(),
         json!({"used": g.readout, "not_covered": g.readout_not_covered,
-               "predicted": g.predicted, "prediction_not_covered": g.prediction_not_covered}),
+               "predicted": g.predicted, "prediction_not_covered": g.prediction_not_covered,
+               "keyframes_deferred": g.keyframes_deferred}),
     );
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {

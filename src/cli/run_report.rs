@@ -182,6 +182,10 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                     j["gyroscope_frames"]["prediction_not_covered"]
                 ),
             ],
+            vec![
+                "keyframes that waited for a jolt to pass (gyroscope)".into(),
+                j["gyroscope_frames"]["keyframes_deferred"].to_string(),
+            ],
             vec!["keyframes".into(), g("keyframes")],
             vec![
                 "frames/s, whole SLAM (decoding excluded)".into(),

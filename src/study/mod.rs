@@ -145,14 +145,16 @@ pub fn gait_name(g: Gait) -> &'static str {
 /// `config` with the blur mitigations as configured (`on`) or all off: frames the
 /// features lose placed by their depth (odometry key `depth_alignment`), each colour row's
 /// rotation integrated from the gyroscope over the readout and averaged over the exposure
-/// (`readout_gyroscope`), and the rotation from frame to frame predicted by the gyroscope
-/// (`predict_gyroscope`; the real side has no gyroscope).
+/// (`readout_gyroscope`), the rotation from frame to frame predicted by the gyroscope
+/// (`predict_gyroscope`), and keyframes that wait out a jolt the gyroscope shows
+/// (`keyframe_jolt_ratio`; the real side has no gyroscope).
 pub fn with_mitigation(config: &PipelineConfig, on: bool) -> PipelineConfig {
     let mut c = config.clone();
     if !on {
         c.odometry.depth_alignment = false;
         c.odometry.readout_gyroscope = false;
         c.odometry.predict_gyroscope = false;
+        c.odometry.keyframe_jolt_ratio = 0.0;
     }
     c
 }
@@ -189,7 +191,10 @@ pub fn run(
     let mut config = config.clone();
     config.odometry.seed = spec.seed;
     let o = &config.odometry;
-    let mitigation = o.depth_alignment || o.readout_gyroscope || o.predict_gyroscope;
+    let mitigation = o.depth_alignment
+        || o.readout_gyroscope
+        || o.predict_gyroscope
+        || o.keyframe_jolt_ratio > 0.0;
     let mut pipeline = Pipeline::new(&synth.camera_config(), config)?;
     pipeline.add_gyroscope(&synth.gyroscope());
     let renderer = synth.renderer();
