@@ -133,12 +133,19 @@ impl Gyro {
         self.at(t0)?;
         self.at(t1)?;
         let n = ((t1 - t0) / PREDICTION_STEP_S).ceil().max(1.0) as usize;
-        let h = (t1 - t0) / n as f64;
         let mut q = UnitQuaternion::identity();
-        for k in 0..n {
-            q *= UnitQuaternion::from_scaled_axis(self.at(t0 + (k as f64 + 0.5) * h)? * h);
-        }
+        self.integrate(&mut q, t0, (t1 - t0) / n as f64, n)?;
         Some(q)
+    }
+
+    /// Composes onto `q` the rotation over `n` steps of `h_s` from `t0_s`, each step's
+    /// rotation the rate at its middle (midpoint rule); `None` where the samples do not
+    /// give a rate.
+    fn integrate(&self, q: &mut UnitQuaternion<f64>, t0_s: f64, h_s: f64, n: usize) -> Option<()> {
+        for k in 0..n {
+            *q *= UnitQuaternion::from_scaled_axis(self.at(t0_s + (k as f64 + 0.5) * h_s)? * h_s);
+        }
+        Some(())
     }
 
     /// The rotation over the readout `[t0, t1]` relative to its middle instant,
@@ -163,10 +170,12 @@ impl Gyro {
         let mut q = UnitQuaternion::identity();
         start_from_knot.push(q);
         for i in 1..n {
-            for k in 0..ROTATION_SUBSTEPS {
-                let tau = start + (i - 1) as f64 * step_s + (k as f64 + 0.5) * h;
-                q *= UnitQuaternion::from_scaled_axis(self.at(tau)? * h);
-            }
+            self.integrate(
+                &mut q,
+                start + (i - 1) as f64 * step_s,
+                h,
+                ROTATION_SUBSTEPS,
+            )?;
             start_from_knot.push(q);
         }
         // A (blurred) keypoint sits where the scene was on average over its row's

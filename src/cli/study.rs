@@ -468,9 +468,10 @@ fn report(
              when the odometry estimated it (tracked, recovered, relocalized, or placed by its \
              depth: the mitigation, counted apart as 'by depth'); lost frames were predicted. \
              Mitigation: frames the features lose are placed by aligning their depth with the \
-             last keyframe's (the colour blurs, the depth does not), and each colour row's \
+             last keyframe's (the colour blurs, the depth does not); each colour row's \
              rotation is integrated from the lab's gyroscope over the readout and averaged \
-             over the exposure.",
+             over the exposure; the rotation from frame to frame is predicted from it; and a \
+             keyframe that lost tracks ask for waits while it shows a foot's impact.",
             runs.len(),
             if runs.len() == 1 { "" } else { "s" }
         ));

@@ -190,11 +190,8 @@ pub fn run(
     })?;
     let mut config = config.clone();
     config.odometry.seed = spec.seed;
-    let o = &config.odometry;
-    let mitigation = o.depth_alignment
-        || o.readout_gyroscope
-        || o.predict_gyroscope
-        || o.keyframe_jolt_ratio > 0.0;
+    // On when turning the mitigations off would change the configuration.
+    let mitigation = config.odometry != with_mitigation(&config, false).odometry;
     let mut pipeline = Pipeline::new(&synth.camera_config(), config)?;
     pipeline.add_gyroscope(&synth.gyroscope());
     let renderer = synth.renderer();
