@@ -23,6 +23,7 @@ mod gyro;
 pub mod keyframe;
 pub mod klt;
 pub mod motion;
+mod motion_model;
 pub mod place;
 pub mod points;
 pub mod recovery;

@@ -35,7 +35,7 @@ use crate::points::{measure, Measurement, ShutterMotion};
 use crate::recovery::{Anchor, RecentKeyframes};
 use crate::relocalize::PlaceMemory;
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
-use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Matrix6};
 use opencv::core::Point2f;
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
@@ -63,8 +63,8 @@ pub struct VisualOdometry {
     pub(crate) world_from_kf: Isometry3<f64>,
     /// `world_from_camera` of the previous frame.
     world_from_prev: Isometry3<f64>,
-    /// The last frame-to-frame motion `prev_from_cur` and the time it took (s).
-    last_motion: Option<(Isometry3<f64>, f64)>,
+    /// The constant-velocity model.
+    motion_model: crate::motion_model::MotionModel,
     /// Tracks when the current keyframe started.
     pub(crate) kf_tracks: usize,
     /// The recent frames' angular rates, for the keyframe decision.
@@ -89,14 +89,6 @@ pub struct VisualOdometry {
     pub(crate) places: PlaceMemory,
 }
 
-/// Scales a motion by `ratio` (translation linearly, rotation along its axis).
-fn scale_motion(m: &Isometry3<f64>, ratio: f64) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::from(m.translation.vector * ratio),
-        UnitQuaternion::from_scaled_axis(m.rotation.scaled_axis() * ratio),
-    )
-}
-
 impl VisualOdometry {
     /// A new odometry for a camera. Validates the configuration.
     pub fn new(camera: PinholeCamera, config: VoConfig) -> Result<Self, FrontendError> {
@@ -111,7 +103,7 @@ impl VisualOdometry {
             tracks: Vec::new(),
             world_from_kf: Isometry3::identity(),
             world_from_prev: Isometry3::identity(),
-            last_motion: None,
+            motion_model: Default::default(),
             kf_tracks: 0,
             jolts: Default::default(),
             kf_pyramids: Vec::new(),
@@ -148,12 +140,7 @@ impl VisualOdometry {
     }
 
     pub(crate) fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
-        match self.last_motion {
-            Some((m, dt)) if dt > 0.0 => {
-                scale_motion(&m, ((t_s - self.prev_t) / dt).clamp(0.0, 5.0))
-            }
-            _ => Isometry3::identity(),
-        }
+        self.motion_model.prev_from_cur(self.prev_t, t_s)
     }
 
     /// The current keyframe's identifier and `world_from_camera` (none before the first
@@ -193,6 +180,7 @@ impl VisualOdometry {
             (self.tracks, measured) = r.tracks.into_iter().unzip();
         }
         self.world_from_prev = world_from_cur;
+        self.motion_model.start(frame.t_s, world_from_cur);
         timing.track_s = start.elapsed().as_secs_f64();
         let t = Instant::now();
         let tracked = self.tracks.len();
@@ -337,6 +325,10 @@ impl VisualOdometry {
             }
             timing.recover_s = t_w.elapsed().as_secs_f64();
         }
+        if status == TrackingStatus::Lost {
+            world_from_cur =
+                self.world_from_prev * self.motion_model.across_gap(self.prev_t, frame.t_s);
+        }
         if !is_finite(&world_from_cur) {
             world_from_cur = self.world_from_prev;
         }
@@ -399,10 +391,9 @@ impl VisualOdometry {
         let keyframe_from_camera = self.world_from_kf.inverse() * world_from_cur;
 
         // 5. Motion model.
-        let dt = frame.t_s - self.prev_t;
-        if estimated && dt > 0.0 {
-            self.last_motion = Some((self.world_from_prev.inverse() * world_from_cur, dt));
-        }
+        let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
+        let estimated_pose = estimated.then_some(world_from_cur);
+        (self.motion_model).record(self.prev_t, frame.t_s, prev_from_cur, estimated_pose);
         self.world_from_prev = world_from_cur;
         self.prev = Some(pyr);
         self.prev_t = frame.t_s;

@@ -1,0 +1,189 @@
+//! The constant-velocity motion model: where the next frame is expected, from the motion
+//! of the frames before it.
+//!
+//! Tracking starts from the last frame-to-frame motion scaled by the elapsed time, at most
+//! [`SHORT_HORIZON_FRAMES`] intervals of it: Lucas-Kanade's pyramid absorbs a poor guess,
+//! and a camera that orbits what it looks at (as teddy_200's does) keeps its image still
+//! while it moves, so a guess near the previous view tracks across a 1 s gap where a
+//! faithful extrapolation loses it.
+//!
+//! A frame that nothing could place is put where the motion model expects it. After
+//! dropped frames (more than [`SHORT_HORIZON_FRAMES`] intervals) that is the mean velocity
+//! of the last [`VELOCITY_WINDOW_S`] of estimated frames, extrapolated over the whole
+//! interval up to [`EXTRAPOLATION_HORIZON_S`]; one frame's motion, whose noise an
+//! extrapolation multiplies, and a robot's sway within each gait cycle would mislead it.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+
+/// Frame intervals ahead that the last frame's own motion predicts (the model's horizon
+/// before dropped frames are assumed).
+pub(crate) const SHORT_HORIZON_FRAMES: f64 = 5.0;
+
+/// The span of recent frames whose mean velocity predicts across dropped frames (s): about
+/// one gait cycle of a walking robot (0.75-2 Hz in the synthetic lab), so the body's sway
+/// averages out.
+pub(crate) const VELOCITY_WINDOW_S: f64 = 1.0;
+
+/// The longest interval a velocity is extrapolated over (s): twice the span it was
+/// measured over. A longer gap is predicted as this interval's motion.
+pub(crate) const EXTRAPOLATION_HORIZON_S: f64 = 2.0 * VELOCITY_WINDOW_S;
+
+/// The constant-velocity model's memory of the recent motion.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct MotionModel {
+    /// The last estimated frame-to-frame motion `prev_from_cur` and its duration (s).
+    last: Option<(Isometry3<f64>, f64)>,
+    /// `(t_s, world_from_camera)` of the frames estimated since the last one that was not,
+    /// oldest first, spanning at most [`VELOCITY_WINDOW_S`].
+    recent: VecDeque<(f64, Isometry3<f64>)>,
+}
+
+/// Scales a motion by `ratio` (translation linearly, rotation along its axis).
+pub(crate) fn scale_motion(m: &Isometry3<f64>, ratio: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(m.translation.vector * ratio),
+        UnitQuaternion::from_scaled_axis(m.rotation.scaled_axis() * ratio),
+    )
+}
+
+impl MotionModel {
+    /// Records the first frame of a run, at `t_s` (s), posed `world_from_cur`.
+    pub(crate) fn start(&mut self, t_s: f64, world_from_cur: Isometry3<f64>) {
+        self.last = None;
+        self.recent.clear();
+        self.recent.push_back((t_s, world_from_cur));
+    }
+
+    /// Records a frame at `t_s` (s) after the previous one at `prev_t` (s):
+    /// `world_from_cur` when its pose was estimated (its motion `prev_from_cur` is then
+    /// measured), `None` when it was only predicted (the velocity is then measured afresh
+    /// from the frames after it; the last motion stays).
+    pub(crate) fn record(
+        &mut self,
+        prev_t: f64,
+        t_s: f64,
+        prev_from_cur: Isometry3<f64>,
+        world_from_cur: Option<Isometry3<f64>>,
+    ) {
+        let Some(world_from_cur) = world_from_cur else {
+            self.recent.clear();
+            return;
+        };
+        let dt = t_s - prev_t;
+        if dt > 0.0 {
+            self.last = Some((prev_from_cur, dt));
+        }
+        self.recent.push_back((t_s, world_from_cur));
+        while (self.recent.front()).is_some_and(|&(t, _)| t < t_s - VELOCITY_WINDOW_S) {
+            self.recent.pop_front();
+        }
+    }
+
+    /// The motion `prev_from_cur` predicted from the previous frame at `prev_t` (s) to a
+    /// frame at `t_s` (s) for tracking: the last motion scaled by the elapsed time, at
+    /// most [`SHORT_HORIZON_FRAMES`] of it; the identity before any motion was measured.
+    pub(crate) fn prev_from_cur(&self, prev_t: f64, t_s: f64) -> Isometry3<f64> {
+        match self.last {
+            Some((m, dt)) if dt > 0.0 => {
+                scale_motion(&m, ((t_s - prev_t) / dt).clamp(0.0, SHORT_HORIZON_FRAMES))
+            }
+            _ => Isometry3::identity(),
+        }
+    }
+
+    /// The motion `prev_from_cur` of a frame nothing could place, at `t_s` (s) after the
+    /// previous frame at `prev_t` (s): [`Self::prev_from_cur`], except after dropped
+    /// frames (more than [`SHORT_HORIZON_FRAMES`] intervals), where the mean velocity of the
+    /// recent frames is extrapolated over the whole interval (at most
+    /// [`EXTRAPOLATION_HORIZON_S`]).
+    pub(crate) fn across_gap(&self, prev_t: f64, t_s: f64) -> Isometry3<f64> {
+        let elapsed = t_s - prev_t;
+        match (self.last, self.recent.front(), self.recent.back()) {
+            (Some((_, dt)), Some((t0, world_from_a)), Some((t1, world_from_b)))
+                if dt > 0.0 && elapsed > SHORT_HORIZON_FRAMES * dt && t1 - t0 > 2.0 * dt =>
+            {
+                let a_from_b = world_from_a.inverse() * world_from_b;
+                scale_motion(&a_from_b, elapsed.min(EXTRAPOLATION_HORIZON_S) / (t1 - t0))
+            }
+            _ => self.prev_from_cur(prev_t, t_s),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    const DT_S: f64 = 1.0 / 30.0;
+
+    /// A screw along the optical axis: 4 mm forward and 0.01 rad about it per frame (the two
+    /// commute, so `n` frames move exactly `n` times as far and turn `n` times as much).
+    fn step() -> Isometry3<f64> {
+        Isometry3::new(Vector3::new(0.0, 0.0, 0.004), Vector3::new(0.0, 0.0, 0.01))
+    }
+
+    /// A model that saw `frames` frames of the screw at 30 Hz; the last one's time (s).
+    fn walked(frames: usize) -> (MotionModel, f64) {
+        let mut model = MotionModel::default();
+        let mut world_from_cur = Isometry3::identity();
+        model.start(0.0, world_from_cur);
+        for i in 1..frames {
+            world_from_cur *= step();
+            let (prev_t, t_s) = ((i - 1) as f64 * DT_S, i as f64 * DT_S);
+            model.record(prev_t, t_s, step(), Some(world_from_cur));
+        }
+        (model, (frames - 1) as f64 * DT_S)
+    }
+
+    fn distance(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+        let d = a.inverse() * b;
+        (d.translation.vector.norm(), d.rotation.angle())
+    }
+
+    #[test]
+    fn a_gap_is_crossed_at_the_recent_velocity() {
+        let (model, t_s) = walked(60);
+        let expected = scale_motion(&step(), 30.0);
+        let (dt_m, dr_rad) = distance(&model.across_gap(t_s, t_s + 1.0), &expected);
+        assert!(dt_m < 1e-9 && dr_rad < 1e-9, "{dt_m} m, {dr_rad} rad");
+        // Tracking's guess stays within five frames of motion.
+        let (dt_m, dr_rad) = distance(
+            &model.prev_from_cur(t_s, t_s + 1.0),
+            &scale_motion(&step(), SHORT_HORIZON_FRAMES),
+        );
+        assert!(dt_m < 1e-9 && dr_rad < 1e-9, "{dt_m} m, {dr_rad} rad");
+    }
+
+    #[test]
+    fn a_long_gap_is_predicted_as_the_horizon_and_a_short_one_as_tracking_predicts() {
+        let (model, t_s) = walked(60);
+        let horizon = scale_motion(&step(), EXTRAPOLATION_HORIZON_S / DT_S);
+        let (dt_m, dr_rad) = distance(&model.across_gap(t_s, t_s + 10.0), &horizon);
+        assert!(dt_m < 1e-9 && dr_rad < 1e-9, "{dt_m} m, {dr_rad} rad");
+        let two_frames = t_s + 2.0 * DT_S;
+        let (dt_m, dr_rad) = distance(
+            &model.across_gap(t_s, two_frames),
+            &model.prev_from_cur(t_s, two_frames),
+        );
+        assert!(dt_m < 1e-12 && dr_rad < 1e-12, "{dt_m} m, {dr_rad} rad");
+    }
+
+    #[test]
+    fn after_a_predicted_frame_the_velocity_is_measured_afresh() {
+        let (mut model, t_s) = walked(60);
+        model.record(t_s, t_s + DT_S, step(), None);
+        let later = t_s + 1.0;
+        let (dt_m, dr_rad) = distance(
+            &model.across_gap(t_s + DT_S, later),
+            &model.prev_from_cur(t_s + DT_S, later),
+        );
+        assert!(dt_m < 1e-12 && dr_rad < 1e-12, "{dt_m} m, {dr_rad} rad");
+        assert_eq!(
+            MotionModel::default().across_gap(0.0, 1.0),
+            Isometry3::identity()
+        );
+    }
+}
