@@ -40,14 +40,24 @@ fn the_quick_blur_study_measures_each_run_and_sees_the_blur_in_the_images() {
         ),
         (Some(0.3), Some(0.95))
     );
+    // Both walked the same 0.2 m (paper 004's runs walked the same path at every speed):
+    // 133 frames at 0.30 of full speed, 42 at 0.95.
+    assert_eq!(j["distance_m"].as_f64(), Some(0.2));
     for r in runs {
         let frames = r["frames"].as_u64().unwrap();
+        let speed_m_s =
+            r["speed_fraction"].as_f64().unwrap() * j["max_speed_m_s"].as_f64().unwrap();
+        let walked_m = frames as f64 / 30.0 * speed_m_s;
+        assert!(
+            (walked_m - 0.2).abs() <= speed_m_s / 30.0,
+            "{frames} frames: {walked_m} m"
+        );
         assert_eq!(r["per_frame"].as_array().unwrap().len() as u64, frames);
         assert_eq!(
             r["tracked"].as_u64().unwrap() + r["lost"].as_u64().unwrap(),
             frames
         );
-        // Measured 0.4 and 1.1 mm on 320x240 frames.
+        // Measured 0.47 and 0.52 mm on 320x240 frames.
         let ate = r["ate_m"].as_f64().unwrap();
         assert!(ate > 0.0 && ate < 0.005, "ATE {ate} m");
     }

@@ -4,7 +4,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use std::path::PathBuf;
 use stride::pipeline::world::WorldPlan;
-use stride::study::{RunResult, RunSpec, MAX_SPEED_M_S};
+use stride::study::{frames_for_distance, RunResult, RunSpec, MAX_SPEED_M_S};
 use stride_datasets::camera_config::CameraConfig;
 use stride_datasets::synth::motion::Gait;
 use stride_datasets::synth::SynthConfig;
@@ -40,12 +40,15 @@ pub struct BlurStudyArgs {
     /// Seeds per gait and speed (1, 2, ...).
     #[arg(long, default_value_t = 3)]
     seeds: u64,
-    /// Frames per run (30 Hz).
-    #[arg(long, default_value_t = 150)]
-    frames: usize,
-    /// A quick study for CI: 320x240 images, 45 frames, one seed, the slowest and fastest
-    /// speeds (unless given); on the real side the first 60 frames, unblurred and at 25 px
-    /// (unless given).
+    /// Distance every run walks (m), along a square with 0.75 m sides. Paper 004's runs
+    /// walked the same rectangle at each speed, so a slower run takes more frames (at 30 Hz:
+    /// 0.5 m is 105 frames at 0.95 of full speed, 333 at 0.30) and every speed's error is
+    /// measured over the same path. More than 0.75 m reaches the first turn on the spot.
+    #[arg(long, default_value_t = 0.5, value_name = "M")]
+    distance_m: f64,
+    /// A quick study for CI: 320x240 images, walks of at most 0.2 m, one seed, the slowest
+    /// and fastest speeds (unless given); on the real side the first 60 frames, unblurred
+    /// and at 25 px (unless given).
     #[arg(long)]
     quick: bool,
     /// The real side: a recorded sequence with ground truth (a TUM folder or an MCAP log),
@@ -128,7 +131,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
             a.lengths = vec![0.0, 25.0];
         }
         a.seeds = 1;
-        a.frames = a.frames.min(45);
+        a.distance_m = a.distance_m.min(0.2);
         real_frames = Some(60);
         base.camera = CameraConfig {
             camera: stride_core::camera::PinholeCamera::new(
@@ -146,8 +149,18 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     if a.lengths.iter().any(|l| !(l.is_finite() && *l >= 0.0)) {
         bail!("--lengths: each must be a blur length of 0 px or more");
     }
-    if a.seeds == 0 || a.frames < 10 {
-        bail!("--seeds must be at least 1 and --frames at least 10");
+    if a.seeds == 0 {
+        bail!("--seeds must be at least 1");
+    }
+    if !(a.distance_m.is_finite() && a.distance_m > 0.0) {
+        bail!("--distance-m must be a positive distance (m)");
+    }
+    let fps = base.fps;
+    if let Some(s) = (a.speeds.iter()).find(|&&s| frames_for_distance(a.distance_m, s, fps) < 10) {
+        bail!(
+            "--distance-m {}: at {s} of full speed that is fewer than 10 frames; walk further",
+            a.distance_m
+        );
     }
     let mut config = match &a.config {
         Some(p) => stride::config::Config::load(p)?.pipeline(WorldPlan::Floor),
@@ -170,13 +183,18 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
             );
         }
     }
-    let specs: Vec<RunSpec> = if a.real_only { Vec::new() } else { specs(&a) };
+    let specs: Vec<RunSpec> = if a.real_only {
+        Vec::new()
+    } else {
+        specs(&a, fps)
+    };
     let real_len = real.as_ref().map_or(0, |s| {
         real_frames.map_or(s.len(), |m: usize| m.min(s.len()))
     });
     let mitigations = a.mitigation.settings();
     let bar = super::progress_bar(
-        specs.len() * mitigations.len() * a.frames + real_len * a.lengths.len(),
+        specs.iter().map(|s| s.frames).sum::<usize>() * mitigations.len()
+            + real_len * a.lengths.len(),
         "frames",
         !a.quiet,
     );
@@ -220,7 +238,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     let real_name = real.as_ref().map(|s| s.path().display().to_string());
     let json = serde_json::json!({
         "max_speed_m_s": MAX_SPEED_M_S,
-        "frames": a.frames,
+        "distance_m": a.distance_m,
         "image_size": [base.camera.camera.width(), base.camera.camera.height()],
         "runs": runs,
         "real": real_name.as_ref().map(|d| serde_json::json!({
@@ -239,7 +257,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     let real_section = real_name
         .as_deref()
         .map(|d| (d, a.seeds, &real_runs[..], &peer_runs));
-    report(&runs, &rows, a.frames, real_section)
+    report(&runs, &rows, a.distance_m, real_section)
         .write(staged.path())
         .context("writing the report")?;
     staged
@@ -264,8 +282,9 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
     Ok(())
 }
 
-/// The synthetic runs: each gait at each speed with each seed.
-fn specs(a: &BlurStudyArgs) -> Vec<RunSpec> {
+/// The synthetic runs: each gait at each speed with each seed, each walking `a.distance_m`
+/// at `fps` (Hz).
+fn specs(a: &BlurStudyArgs, fps: f64) -> Vec<RunSpec> {
     a.gaits
         .iter()
         .flat_map(|g| {
@@ -273,8 +292,8 @@ fn specs(a: &BlurStudyArgs) -> Vec<RunSpec> {
                 GaitArg::Tripod => Gait::Tripod,
                 GaitArg::Crawl => Gait::Crawl,
             };
-            let frames = a.frames;
             a.speeds.iter().flat_map(move |&speed_fraction| {
+                let frames = frames_for_distance(a.distance_m, speed_fraction, fps);
                 (1..=a.seeds).map(move |seed| RunSpec {
                     gait,
                     speed_fraction,
@@ -350,7 +369,7 @@ fn phase_line(pf: &[stride::study::FrameBlur]) -> Vec<(f64, f64)> {
 fn report(
     runs: &[RunResult],
     rows: &[Vec<String>],
-    frames: usize,
+    distance_m: f64,
     real: Option<(
         &str,
         u64,
@@ -460,9 +479,12 @@ fn report(
     }
     let mut rep = Report::new("stride study blur: gait-dependent motion blur (paper 004)");
     if !runs.is_empty() {
+        let fewest = runs.iter().map(|r| r.frames).min().unwrap_or(0);
+        let most = runs.iter().map(|r| r.frames).max().unwrap_or(0);
         rep.paragraph(format!(
-            "{} run{} of {frames} frames at 30 Hz: square walks (0.75 m sides) in the synthetic \
-             lab with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM \
+            "{} run{}, each a walk of {distance_m} m at 30 Hz ({fewest}-{most} frames: the \
+             slower, the more, since paper 004's runs walked the same path at each speed) \
+             along a square (0.75 m sides) in the synthetic lab with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM \
              (odometry with bundle adjustment) on each as the frames are rendered. ATE: RMSE \
              after SE(3) alignment, RPE: over one frame (evo's definitions). A frame is tracked \
              when the odometry estimated it (tracked, recovered, relocalized, or placed by its \

@@ -65,6 +65,14 @@ pub enum StudyError {
     },
 }
 
+/// Frames a run at `speed_fraction` of [`MAX_SPEED_M_S`] takes to walk `distance_m` (m) at
+/// `fps` (Hz), rounded. Every speed walks the same path, as paper 004's runs walked the same
+/// rectangle, so a slower run has more frames and the error of each speed is measured over
+/// the same distance.
+pub fn frames_for_distance(distance_m: f64, speed_fraction: f64, fps: f64) -> usize {
+    (distance_m / (speed_fraction * MAX_SPEED_M_S) * fps).round() as usize
+}
+
 /// One run of the study: a gait at a speed with a seed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunSpec {
@@ -159,8 +167,9 @@ pub fn with_mitigation(config: &PipelineConfig, on: bool) -> PipelineConfig {
     c
 }
 
-/// The lab's sequence for a run: a square walk (0.75 m sides, so that the turns of paper
-/// 004's runs are in it) with blur, on `base`'s camera and terrain.
+/// The lab's sequence for a run: a square walk with blur (0.75 m sides, as paper 004's
+/// rectangles; a run longer than a side reaches the first turn on the spot), on `base`'s
+/// camera and terrain.
 pub fn synth_config(spec: &RunSpec, base: &SynthConfig) -> SynthConfig {
     let mut c = base.clone();
     c.motion.gait = spec.gait;
