@@ -265,7 +265,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         .with_context(|| format!("publishing {}", a.out.display()))?;
     if !runs.is_empty() {
         crate::outln!(
-            "gait    speed  mitigation  ATE mm (mean, worst)  RPE mm  tracked  by depth  lost  motion px  sharpness"
+            "gait    speed  frames  mitigation  ATE mm (mean, worst)  RPE mm  tracked  by depth  lost  motion px  sharpness"
         )?;
         for r in &rows {
             crate::outln!("{}", r.join("  "))?;
@@ -339,6 +339,7 @@ fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<St
         rows.push(vec![
             gait.to_owned(),
             format!("{s:.2} ({:.3} m/s)", s * MAX_SPEED_M_S),
+            format!("{}", set.first().map_or(0, |r| r.frames)),
             on_off(m).to_owned(),
             format!("{:.2}, {:.2}", mean(&|r| r.ate_m) * 1e3, worst_ate * 1e3),
             format!("{:.2}", mean(&|r| r.rpe_m) * 1e3),
@@ -502,6 +503,7 @@ fn report(
             &[
                 "gait",
                 "speed",
+                "frames per run",
                 "mitigation",
                 "ATE mm (mean, worst)",
                 "RPE mm",
