@@ -52,6 +52,13 @@ impl MotionModel {
     /// Records the first frame of a run, at `t_s` (s), posed `world_from_cur`.
     pub(crate) fn start(&mut self, t_s: f64, world_from_cur: Isometry3<f64>) {
         self.last = None;
+        self.restart(t_s, world_from_cur);
+    }
+
+    /// Records a frame at `t_s` (s) posed `world_from_cur` whose motion from the previous
+    /// frame is not a velocity (a relocalization's jump): the velocity is measured afresh
+    /// from it, and the last motion before it stays.
+    pub(crate) fn restart(&mut self, t_s: f64, world_from_cur: Isometry3<f64>) {
         self.recent.clear();
         self.recent.push_back((t_s, world_from_cur));
     }
@@ -185,5 +192,21 @@ mod tests {
             MotionModel::default().across_gap(0.0, 1.0),
             Isometry3::identity()
         );
+    }
+
+    #[test]
+    fn a_relocalization_jump_is_not_taken_for_a_velocity() {
+        let (mut model, t_s) = walked(60);
+        let kidnapped = Isometry3::new(Vector3::new(1.5, 0.0, 0.0), Vector3::new(0.0, 1.7, 0.0));
+        model.restart(t_s + DT_S, kidnapped);
+        let next = t_s + 2.0 * DT_S;
+        let (dt_m, dr_rad) = distance(&model.prev_from_cur(t_s + DT_S, next), &step());
+        assert!(dt_m < 1e-12 && dr_rad < 1e-12, "{dt_m} m, {dr_rad} rad");
+        let later = t_s + 1.0;
+        let (dt_m, dr_rad) = distance(
+            &model.across_gap(t_s + DT_S, later),
+            &model.prev_from_cur(t_s + DT_S, later),
+        );
+        assert!(dt_m < 1e-12 && dr_rad < 1e-12, "{dt_m} m, {dr_rad} rad");
     }
 }

@@ -390,10 +390,15 @@ impl VisualOdometry {
         let keyframe_id = self.kf_count.saturating_sub(1);
         let keyframe_from_camera = self.world_from_kf.inverse() * world_from_cur;
 
-        // 5. Motion model.
+        // 5. Motion model. A relocalized frame's jump is a correction (or a kidnapping),
+        // not a velocity: the model restarts from it and keeps the motion before.
         let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
-        let estimated_pose = estimated.then_some(world_from_cur);
-        (self.motion_model).record(self.prev_t, frame.t_s, prev_from_cur, estimated_pose);
+        if status == TrackingStatus::Relocalized {
+            self.motion_model.restart(frame.t_s, world_from_cur);
+        } else {
+            let estimated_pose = estimated.then_some(world_from_cur);
+            (self.motion_model).record(self.prev_t, frame.t_s, prev_from_cur, estimated_pose);
+        }
         self.world_from_prev = world_from_cur;
         self.prev = Some(pyr);
         self.prev_t = frame.t_s;
