@@ -251,20 +251,21 @@ impl VisualOdometry {
     /// gyroscope's integrated between the two frames' times when `predict_gyroscope` is on
     /// and the samples cover the interval (counted either way). A walking robot's shake
     /// turns the camera back and forth within a few frames, which a constant angular
-    /// velocity gets wrong; Lucas-Kanade starts each track from this prediction.
-    pub(crate) fn predicted_with_gyroscope(&mut self, t_s: f64) -> Isometry3<f64> {
-        let cv = self.predicted_prev_from_cur(t_s);
+    /// velocity gets wrong; Lucas-Kanade starts each track from this prediction. The flag
+    /// says whether the rotation is the gyroscope's.
+    pub(crate) fn predicted_with_gyroscope(&mut self, t_s: f64) -> (Isometry3<f64>, bool) {
+        let cv = self.motion_model.prev_from_cur(self.prev_t, t_s);
         if !self.config.predict_gyroscope || self.gyro.samples.is_empty() {
-            return cv;
+            return (cv, false);
         }
         match self.gyro.rotation_between(self.prev_t, t_s) {
             Some(r) => {
                 self.gyro.predicted += 1;
-                Isometry3::from_parts(cv.translation, r)
+                (Isometry3::from_parts(cv.translation, r), true)
             }
             None => {
                 self.gyro.not_predicted += 1;
-                cv
+                (cv, false)
             }
         }
     }

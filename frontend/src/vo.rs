@@ -64,7 +64,7 @@ pub struct VisualOdometry {
     /// `world_from_camera` of the previous frame.
     world_from_prev: Isometry3<f64>,
     /// The constant-velocity model.
-    motion_model: crate::motion_model::MotionModel,
+    pub(crate) motion_model: crate::motion_model::MotionModel,
     /// Tracks when the current keyframe started.
     pub(crate) kf_tracks: usize,
     /// The recent frames' angular rates, for the keyframe decision.
@@ -139,10 +139,6 @@ impl VisualOdometry {
         &self.camera
     }
 
-    pub(crate) fn predicted_prev_from_cur(&self, t_s: f64) -> Isometry3<f64> {
-        self.motion_model.prev_from_cur(self.prev_t, t_s)
-    }
-
     /// The current keyframe's identifier and `world_from_camera` (none before the first
     /// frame).
     pub fn current_keyframe(&self) -> Option<(u64, Isometry3<f64>)> {
@@ -152,7 +148,7 @@ impl VisualOdometry {
     /// The pose predicted for time `t_s` by the constant-velocity model (for frames that
     /// could not even be loaded).
     pub fn predict(&self, t_s: f64) -> Isometry3<f64> {
-        self.world_from_prev * self.predicted_prev_from_cur(t_s)
+        self.world_from_prev * self.motion_model.prev_from_cur(self.prev_t, t_s)
     }
 
     /// The first frame: it defines the world, or, in a saved map, is relocalized in it
@@ -232,7 +228,7 @@ impl VisualOdometry {
         };
 
         // 1. Predict and track.
-        let prev_from_pred = self.predicted_with_gyroscope(frame.t_s);
+        let (prev_from_pred, gyro_rotation) = self.predicted_with_gyroscope(frame.t_s);
         self.shutter =
             self.readout_motion(&prev_from_pred, frame.t_s - self.prev_t, frame.t_s, true);
         let world_from_pred = self.world_from_prev * prev_from_pred;
@@ -325,9 +321,17 @@ impl VisualOdometry {
             }
             timing.recover_s = t_w.elapsed().as_secs_f64();
         }
-        if status == TrackingStatus::Lost {
+        // After dropped frames a lost frame moves at the recent velocity (its rotation the
+        // gyroscope's when that measured it).
+        let gap = (self.motion_model).across_gap(self.prev_t, frame.t_s);
+        if let Some(gap) = gap.filter(|_| status == TrackingStatus::Lost) {
+            let rotation = if gyro_rotation {
+                prev_from_pred.rotation
+            } else {
+                gap.rotation
+            };
             world_from_cur =
-                self.world_from_prev * self.motion_model.across_gap(self.prev_t, frame.t_s);
+                self.world_from_prev * Isometry3::from_parts(gap.translation, rotation);
         }
         if !is_finite(&world_from_cur) {
             world_from_cur = self.world_from_prev;
