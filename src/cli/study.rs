@@ -485,8 +485,9 @@ fn report(
         rep.paragraph(format!(
             "{} run{}, each a walk of {distance_m} m at 30 Hz ({fewest}-{most} frames: the \
              slower, the more, since paper 004's runs walked the same path at each speed) \
-             along a square (0.75 m sides) in the synthetic lab with motion blur, a 20 ms rolling shutter and the gait's shake; the SLAM \
-             (odometry with bundle adjustment) on each as the frames are rendered. ATE: RMSE \
+             along a square (0.75 m sides) in the synthetic lab with motion blur, a 20 ms \
+             rolling shutter and the gait's shake; the SLAM (odometry with bundle \
+             adjustment) on each as the frames are rendered. ATE: RMSE \
              after SE(3) alignment, RPE: over one frame (evo's definitions). A frame is tracked \
              when the odometry estimated it (tracked, recovered, relocalized, or placed by its \
              depth: the mitigation, counted apart as 'by depth'); lost frames were predicted. \
