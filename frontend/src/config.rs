@@ -106,6 +106,13 @@ pub struct VoConfig {
     pub max_step_translation_m: f64,
     /// A frame-to-frame rotation larger than this is rejected as a failure (degrees).
     pub max_step_rotation_deg: f64,
+    /// With a gyroscope that measured the rotation since the previous frame
+    /// (`predict_gyroscope`), a motion estimate whose rotation differs from the
+    /// gyroscope's by more than this (degrees) is rejected as a failure: a few tracks on
+    /// one patch can trade rotation for translation, as after dropped frames in a turn.
+    /// 0: never. The lab's estimates differ from its gyroscope by at most 0.12 degrees; a
+    /// gyroscope whose bias integrates to more than this over a gap needs a larger bound.
+    pub max_gyroscope_disagreement_deg: f64,
     /// Compute ORB descriptors of keyframe keypoints (for map matching by a back end).
     pub orb_descriptors: bool,
     /// Wide-baseline recovery ([`crate::recovery`]): when Lucas-Kanade loses a frame, or
@@ -220,6 +227,12 @@ impl VoConfig {
             c.min_feature_distance_px,
             pos(f64::from(c.min_feature_distance_px)),
             "positive (px)",
+        )?;
+        check(
+            "max_gyroscope_disagreement_deg",
+            c.max_gyroscope_disagreement_deg,
+            c.max_gyroscope_disagreement_deg >= 0.0 && c.max_gyroscope_disagreement_deg.is_finite(),
+            "0 (off), or finite and positive (deg)",
         )?;
         check(
             "keyframe_jolt_ratio",
@@ -452,6 +465,7 @@ impl Default for VoConfig {
             keyframe_max_rotation_deg: 20.0,
             max_step_translation_m: 0.5,
             max_step_rotation_deg: 45.0,
+            max_gyroscope_disagreement_deg: 1.0,
             orb_descriptors: true,
             recovery_keyframes: Some(5),
             recovery_min_inliers: 20,

@@ -57,6 +57,10 @@ pub struct GyroscopeFrames {
     /// Keyframes that lost tracks asked for on a frame the gyroscope showed jolted, and
     /// that waited for a later frame ([`crate::VoConfig::keyframe_jolt_ratio`]).
     pub keyframes_deferred: usize,
+    /// Motion estimates rejected because their rotation disagreed with the gyroscope's
+    /// ([`crate::VoConfig::max_gyroscope_disagreement_deg`]); the frame then went to
+    /// recovery as a lost one would.
+    pub estimates_rejected: usize,
 }
 
 /// The gyroscope's samples and what they were used for.
@@ -72,6 +76,8 @@ pub(crate) struct Gyro {
     /// they did not cover (predicted by constant velocity alone).
     pub(crate) predicted: usize,
     pub(crate) not_predicted: usize,
+    /// Motion estimates rejected for disagreeing with the gyroscope's rotation.
+    pub(crate) rejected: usize,
 }
 
 impl Gyro {
@@ -228,7 +234,24 @@ impl VisualOdometry {
             predicted: self.gyro.predicted,
             prediction_not_covered: self.gyro.not_predicted,
             keyframes_deferred: self.jolts.deferred,
+            estimates_rejected: self.gyro.rejected,
         }
+    }
+
+    /// Whether a motion estimate `prev_from_cur` turns by more than
+    /// `max_gyroscope_disagreement_deg` from `gyroscope`, the gyroscope's rotation over the
+    /// same interval (`None` when it measured none): then it is rejected, and counted.
+    pub(crate) fn disagrees_with_gyroscope(
+        &mut self,
+        prev_from_cur: &Isometry3<f64>,
+        gyroscope: Option<&UnitQuaternion<f64>>,
+    ) -> bool {
+        let max_deg = self.config.max_gyroscope_disagreement_deg;
+        let disagrees = gyroscope.is_some_and(|r| {
+            max_deg > 0.0 && (r.inverse() * prev_from_cur.rotation).angle().to_degrees() > max_deg
+        });
+        self.gyro.rejected += usize::from(disagrees);
+        disagrees
     }
 
     /// The camera's angular rate around the frame at `t_s` (rad/s): the mean norm of the

@@ -228,7 +228,8 @@ impl VisualOdometry {
         };
 
         // 1. Predict and track.
-        let (prev_from_pred, gyro_rotation) = self.predicted_with_gyroscope(frame.t_s);
+        let (prev_from_pred, gyro) = self.predicted_with_gyroscope(frame.t_s);
+        let gyro_rotation = gyro.then_some(prev_from_pred.rotation);
         self.shutter =
             self.readout_motion(&prev_from_pred, frame.t_s - self.prev_t, frame.t_s, true);
         let world_from_pred = self.world_from_prev * prev_from_pred;
@@ -292,7 +293,8 @@ impl VisualOdometry {
                 let step = self.world_from_prev.inverse() * candidate;
                 let plausible = is_finite(&candidate)
                     && step.translation.vector.norm() <= cfg.max_step_translation_m
-                    && step.rotation.angle().to_degrees() <= cfg.max_step_rotation_deg;
+                    && step.rotation.angle().to_degrees() <= cfg.max_step_rotation_deg
+                    && !self.disagrees_with_gyroscope(&step, gyro_rotation.as_ref());
                 if plausible {
                     world_from_cur = candidate;
                     inliers = e.inlier_count;
@@ -325,11 +327,7 @@ impl VisualOdometry {
         // gyroscope's when that measured it).
         let gap = (self.motion_model).across_gap(self.prev_t, frame.t_s);
         if let Some(gap) = gap.filter(|_| status == TrackingStatus::Lost) {
-            let rotation = if gyro_rotation {
-                prev_from_pred.rotation
-            } else {
-                gap.rotation
-            };
+            let rotation = gyro_rotation.unwrap_or(gap.rotation);
             world_from_cur =
                 self.world_from_prev * Isometry3::from_parts(gap.translation, rotation);
         }

@@ -413,7 +413,8 @@ fn report_json(
         "gyroscope_frames".into(),
         json!({"used": g.readout, "not_covered": g.readout_not_covered,
                "predicted": g.predicted, "prediction_not_covered": g.prediction_not_covered,
-               "keyframes_deferred": g.keyframes_deferred}),
+               "keyframes_deferred": g.keyframes_deferred,
+               "estimates_rejected": g.estimates_rejected}),
     );
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {

@@ -186,6 +186,10 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 "keyframes that waited for a jolt to pass (gyroscope)".into(),
                 j["gyroscope_frames"]["keyframes_deferred"].to_string(),
             ],
+            vec![
+                "motion estimates rejected: rotation off the gyroscope's".into(),
+                j["gyroscope_frames"]["estimates_rejected"].to_string(),
+            ],
             vec!["keyframes".into(), g("keyframes")],
             vec![
                 "frames/s, whole SLAM (decoding excluded)".into(),
