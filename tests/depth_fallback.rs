@@ -8,9 +8,7 @@
 mod common;
 
 use nalgebra::Isometry3;
-use stride_core::frame::RgbdFrame;
 use stride_core::image::RgbImage;
-use stride_datasets::png_io::depth_from_raw;
 use stride_datasets::synth::{Synth, SynthConfig};
 use stride_frontend::{TrackingStatus, VisualOdometry, VoConfig};
 
@@ -36,23 +34,17 @@ fn run(depth_alignment: bool) -> Vec<(TrackingStatus, f64)> {
     let mut first_from_world: Option<Isometry3<f64>> = None;
     (0..cfg.frames)
         .map(|index| {
-            let f = synth.render_frame(&renderer, index);
-            let rgb = if BLANK.contains(&index) {
-                RgbImage::filled(f.rgb.width(), f.rgb.height(), [128, 128, 128])
-            } else {
-                f.rgb
-            };
-            let frame = RgbdFrame {
-                index,
-                t_s: f.info.t_s,
-                t_depth_s: f.info.t_s,
-                rgb,
-                depth_m: depth_from_raw(&f.depth_raw, cfg.camera.depth_scale),
-            };
+            let (mut frame, info) = synth
+                .render_frame(&renderer, index)
+                .into_rgbd(cfg.camera.depth_scale);
+            if BLANK.contains(&index) {
+                frame.rgb =
+                    RgbImage::filled(frame.rgb.width(), frame.rgb.height(), [128, 128, 128]);
+            }
             let r = vo.process(&frame).unwrap();
             let first_from_world =
-                *first_from_world.get_or_insert(f.info.world_from_camera.inverse());
-            let truth = first_from_world * f.info.world_from_camera;
+                *first_from_world.get_or_insert(info.world_from_camera.inverse());
+            let truth = first_from_world * info.world_from_camera;
             let error = (truth.translation.vector - r.world_from_camera.translation.vector).norm();
             (r.status, error)
         })

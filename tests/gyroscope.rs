@@ -10,7 +10,6 @@ mod common;
 
 use nalgebra::Isometry3;
 use stride_core::frame::RgbdFrame;
-use stride_datasets::png_io::depth_from_raw;
 use stride_datasets::synth::motion::{Gait, MotionConfig};
 use stride_datasets::synth::{Synth, SynthConfig};
 use stride_frontend::{VisualOdometry, VoConfig};
@@ -68,14 +67,8 @@ fn the_gyroscope_rate_corrects_the_rolling_shutter_better() {
     let frames: Vec<(RgbdFrame, Isometry3<f64>)> = (0..cfg.frames)
         .map(|index| {
             let f = synth.render_frame(&renderer, index);
-            let frame = RgbdFrame {
-                index,
-                t_s: f.info.t_s,
-                t_depth_s: f.info.t_s,
-                rgb: f.rgb,
-                depth_m: depth_from_raw(&f.depth_raw, cfg.camera.depth_scale),
-            };
-            (frame, f.info.world_from_camera)
+            let (frame, info) = f.into_rgbd(cfg.camera.depth_scale);
+            (frame, info.world_from_camera)
         })
         .collect();
     let (with, used, missed) = run(&synth, &frames, true);
@@ -117,19 +110,14 @@ fn across_a_dropped_turn(max_deg: f64) -> (f64, f64, usize) {
     vo.add_gyroscope(&synth.gyroscope());
     let mut last = None;
     for index in (0..90).chain(135..140) {
-        let f = synth.render_frame(&renderer, index);
-        let frame = RgbdFrame {
-            index,
-            t_s: f.info.t_s,
-            t_depth_s: f.info.t_s,
-            rgb: f.rgb,
-            depth_m: depth_from_raw(&f.depth_raw, cfg.camera.depth_scale),
-        };
+        let (frame, info) = synth
+            .render_frame(&renderer, index)
+            .into_rgbd(cfg.camera.depth_scale);
         let r = vo.process(&frame).unwrap();
         if index == 135 {
             let (est_before, truth_before): (Isometry3<f64>, Isometry3<f64>) = last.unwrap();
             let step_est = est_before.inverse() * r.world_from_camera;
-            let step_truth = truth_before.inverse() * f.info.world_from_camera;
+            let step_truth = truth_before.inverse() * info.world_from_camera;
             let e = step_truth.inverse() * step_est;
             let g = vo.gyroscope_frames();
             return (
@@ -138,7 +126,7 @@ fn across_a_dropped_turn(max_deg: f64) -> (f64, f64, usize) {
                 g.estimates_rejected,
             );
         }
-        last = Some((r.world_from_camera, f.info.world_from_camera));
+        last = Some((r.world_from_camera, info.world_from_camera));
     }
     unreachable!("frame 135 is processed")
 }

@@ -14,9 +14,7 @@
 pub mod real;
 
 use crate::pipeline::{slam_ate_options, FrameStatus, Pipeline, PipelineConfig, PipelineError};
-use stride_core::frame::RgbdFrame;
 use stride_core::trajectory::Trajectory;
-use stride_datasets::png_io::depth_from_raw;
 use stride_datasets::synth::motion::{Gait, PathKind};
 use stride_datasets::synth::{Synth, SynthConfig, SynthError};
 use stride_eval::blur::{correlation, laplacian_variance};
@@ -208,16 +206,8 @@ pub fn run(
     let (mut t0, mut depth_aligned) = (None, 0usize);
     for index in 0..spec.frames {
         let f = synth.render_frame(&renderer, index);
-        let depth_m = depth_from_raw(&f.depth_raw, sc.camera.depth_scale);
-        let sharpness = laplacian_variance(&f.rgb.to_gray());
-        let info = f.info;
-        let frame = RgbdFrame {
-            index,
-            t_s: info.t_s,
-            t_depth_s: info.t_s,
-            rgb: f.rgb,
-            depth_m,
-        };
+        let (frame, info) = f.into_rgbd(sc.camera.depth_scale);
+        let sharpness = laplacian_variance(&frame.rgb.to_gray());
         let record = pipeline.process(&frame, 0.0)?;
         depth_aligned += usize::from(record.status == FrameStatus::DepthAligned);
         gt.push(info.t_s, info.world_from_camera)

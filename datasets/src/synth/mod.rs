@@ -104,6 +104,22 @@ pub struct SynthFrame {
     pub marched_rays: usize,
 }
 
+impl SynthFrame {
+    /// The frame as the odometry takes it (colour and depth at the frame's time, depth in
+    /// m from the raw units at `depth_scale` per m), and what is known about it.
+    pub fn into_rgbd(self, depth_scale: f64) -> (stride_core::frame::RgbdFrame, FrameInfo) {
+        let info = self.info;
+        let frame = stride_core::frame::RgbdFrame {
+            index: info.index,
+            t_s: info.t_s,
+            t_depth_s: info.t_s,
+            depth_m: crate::png_io::depth_from_raw(&self.depth_raw, depth_scale),
+            rgb: self.rgb,
+        };
+        (frame, info)
+    }
+}
+
 /// A synthetic world ready to render frames.
 pub struct Synth {
     config: SynthConfig,
