@@ -30,13 +30,14 @@ pub enum MapperArg {
     /// The naive reference: each cell the median of every height that landed in it.
     Naive,
     /// Stack, Fankhauser and the naive reference side by side, and with a true terrain
-    /// the cells seen (measurements within 3 cm of the true surface), over which every map
-    /// is also scored.
+    /// the cells seen (measurements within 3 cm of the true surface whose ray meets it
+    /// within 3 sigma_d), over which every map is also scored.
     All,
 }
 
-/// A measurement within this height of the true surface (m) shows that its cell was seen:
-/// the sensor's noise and bias at 3-4 m, well below the flying pixels in an edge's shadow.
+/// A measurement within this height of the true surface (m) shows that its cell was seen
+/// (when its ray also meets the surface near it, `NaiveMedian::seen`): the sensor's noise
+/// and bias at 3-4 m.
 const SEEN_TOLERANCE_M: f64 = 0.03;
 
 #[derive(Debug, Args)]
@@ -192,6 +193,7 @@ fn make_mappers(
                     range_m,
                     g.clone(),
                     SEEN_TOLERANCE_M,
+                    c.sensor.model,
                 ))),
                 None => tracing::warn!(
                     "--mapper all without a true terrain: the cells seen are not mapped and no map is scored over them"
