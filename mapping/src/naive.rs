@@ -290,8 +290,8 @@ mod tests {
         assert_eq!(m.name(), "seen");
         // Seen from 0.4 m above the floor, 1 m back: on the surface; a flying pixel above
         // it; one 2.8 cm above the floor (within the height tolerance) whose ray meets the
-        // floor 11.7 cm farther on (3 sigma_d: 2.1 cm), as in an edge's shadow; a point
-        // outside the truth.
+        // floor 11.6 cm farther on (3 sigma_d there: 2.2 cm), as in an edge's shadow; a
+        // point outside the truth.
         let sensor = Isometry3::translation(-1.0, 0.0, 0.4);
         let pts: Vec<Point3<f64>> = [
             Point3::new(0.0, 0.0, 0.002),
@@ -328,7 +328,7 @@ mod tests {
         // Measured 5 cm short of the floor along its ray (depth noise): still met.
         let short = on_floor + (sensor - on_floor).normalize() * 0.05;
         assert!(ray_meets_truth(&truth, &sensor, &short, 0.1));
-        // 3 cm above the floor on a ray that meets it 21 cm farther on.
+        // 3 cm above the floor on a ray that meets it 12.5 cm farther on.
         let hanging = Point3::new(1.0, 0.0, 0.03);
         let sensor_far = Point3::new(-0.5, 0.0, 0.4);
         assert!(!ray_meets_truth(&truth, &sensor_far, &hanging, 0.1));
