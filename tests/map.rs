@@ -14,20 +14,19 @@ fn map(seq: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
     common::run_report("map", seq, out, extra)
 }
 
+/// `stride synth` into `dir` with `args`.
+fn synth(dir: &Path, args: &[&str]) {
+    let out = dir.to_str().unwrap();
+    run_ok(&[&["synth", "--out", out, "-q"], args].concat());
+}
+
 /// A synthetic sequence over the default mixed terrain (steps, boxes) whose depth edges
 /// throw flying pixels half the time.
 fn synthetic(dir: &Path) {
-    run_ok(&[
-        "synth",
-        "--out",
-        dir.to_str().unwrap(),
-        "--frames",
-        "45",
-        "--no-blur",
-        "--flying-pixels",
-        "0.5",
-        "-q",
-    ]);
+    synth(
+        dir,
+        &["--frames", "45", "--no-blur", "--flying-pixels", "0.5"],
+    );
 }
 
 /// Flying pixels add no cell to the cells seen: one near the end of a box's shadow can lie
@@ -41,23 +40,22 @@ fn flying_pixels_add_no_cells_seen_on_box_terrain() {
     let tmp = tempfile::tempdir().unwrap();
     let scored = |flying: &str| {
         let seq = tmp.path().join(format!("seq_{flying}"));
-        run_ok(&[
-            "synth",
-            "--out",
-            seq.to_str().unwrap(),
-            "--frames",
-            "40",
-            "--gait",
-            "crawl",
-            "--seed",
-            "8",
-            "--procedural",
-            "boxes",
-            "--no-blur",
-            "--flying-pixels",
-            flying,
-            "-q",
-        ]);
+        synth(
+            &seq,
+            &[
+                "--frames",
+                "40",
+                "--gait",
+                "crawl",
+                "--seed",
+                "8",
+                "--procedural",
+                "boxes",
+                "--no-blur",
+                "--flying-pixels",
+                flying,
+            ],
+        );
         let terrain = seq.join("terrain.npy");
         let out = tmp.path().join(format!("map_{flying}"));
         let r = map(

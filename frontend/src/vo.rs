@@ -325,8 +325,10 @@ impl VisualOdometry {
         }
         // After dropped frames a lost frame moves at the recent velocity (its rotation the
         // gyroscope's when that measured it).
-        let gap = (self.motion_model).across_gap(self.prev_t, frame.t_s);
-        if let Some(gap) = gap.filter(|_| status == TrackingStatus::Lost) {
+        let gap = (status == TrackingStatus::Lost)
+            .then(|| self.motion_model.across_gap(self.prev_t, frame.t_s))
+            .flatten();
+        if let Some(gap) = gap {
             let rotation = gyro_rotation.unwrap_or(gap.rotation);
             world_from_cur =
                 self.world_from_prev * Isometry3::from_parts(gap.translation, rotation);
