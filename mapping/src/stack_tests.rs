@@ -1,6 +1,7 @@
 //! Tests of `stack`.
 
 use super::*;
+use crate::post::MedianFilter;
 use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
 
 /// A sensor 0.5 m above the origin looking along +x (camera z forward, x right, y down).
