@@ -34,7 +34,9 @@ fn synthetic(dir: &Path) {
 /// on (docs/mapping.md, "Box terrain and the cells seen, corrected"). The same 40-frame
 /// crawl over boxes with the generator's default flying pixels (0.1) and without any:
 /// measured 23,088 against 23,066 cells seen (24,250 against 23,212 before the ray test),
-/// and the stack map covers 0.955 and 0.957 of them (0.912 and 0.953 before).
+/// and the stack map covers 0.949 and 0.952 of them (0.955 and 0.957 before the depth
+/// smoothing, which no longer fills the strips 2-3 cm before the boxes' faces with the
+/// faces' points; 0.912 and 0.953 before the ray test).
 #[test]
 fn flying_pixels_add_no_cells_seen_on_box_terrain() {
     let tmp = tempfile::tempdir().unwrap();
@@ -79,8 +81,12 @@ fn flying_pixels_add_no_cells_seen_on_box_terrain() {
         seen_flying < 1.01 * seen_clean,
         "{seen_flying} vs {seen_clean}"
     );
-    assert!(cov_flying >= 0.95, "{cov_flying}");
-    assert!(cov_clean >= 0.95, "{cov_clean}");
+    assert!(cov_flying >= 0.94, "{cov_flying}");
+    assert!(cov_clean >= 0.94, "{cov_clean}");
+    assert!(
+        (cov_flying - cov_clean).abs() < 0.01,
+        "{cov_flying} vs {cov_clean}"
+    );
 }
 
 #[test]

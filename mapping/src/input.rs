@@ -91,6 +91,23 @@ impl<'a> SensorFrame<'a> {
         })
     }
 
+    /// The same frame with `depth_m` in place of its depth image, which must have the
+    /// same size (a frame of points stays as it is).
+    pub(crate) fn with_depth<'b>(&self, depth_m: &'b DepthImage) -> SensorFrame<'b>
+    where
+        'a: 'b,
+    {
+        let cloud = match self.cloud {
+            Cloud::Depth { camera, .. } => Cloud::Depth { depth_m, camera },
+            other => other,
+        };
+        SensorFrame {
+            cloud,
+            map_from_sensor: self.map_from_sensor,
+            time_s: self.time_s,
+        }
+    }
+
     /// The measurements.
     pub fn cloud(&self) -> Cloud<'a> {
         self.cloud

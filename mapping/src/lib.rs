@@ -27,6 +27,7 @@ mod archive;
 mod binned;
 mod checks;
 mod column;
+pub mod denoise;
 mod depth_pass;
 pub mod error;
 pub mod fankhauser;

@@ -5,7 +5,8 @@
 //!
 //! Per frame:
 //!
-//! 0. depth images first pass the depth-edge filter ([`crate::input::EdgeFilter`]), the
+//! 0. depth images are first smoothed where they are smooth ([`crate::denoise`], an
+//!    extension: [`StackConfig::depth_smoothing`]), then pass the depth-edge filter ([`crate::input::EdgeFilter`]), the
 //!    sensor front end paper 000 assumes: flying pixels behind foreground edges are dropped;
 //! 1. every point's height and height variance come from its covariance in the map frame
 //!    ([`crate::input`]);
@@ -35,6 +36,7 @@
 use crate::archive::{Archive, Archived};
 use crate::checks::{LosTable, SeeThrough, Target};
 use crate::column::{Accs, Cell, Spilled, Stack, Voxel};
+use crate::denoise::Smoother;
 use crate::error::MappingError;
 use crate::fuse::{Band, BandUpdate, Fusion};
 use crate::input::{prepare_binned, Binned, Cloud, PrimeSenseHeight, RayCache, SensorFrame};
@@ -66,6 +68,8 @@ pub struct StackMapper {
     /// Scratch table of the visibility check (lowest line-of-sight slope per azimuth bin
     /// and distance).
     los_table: Vec<f32>,
+    /// The depth smoothing's buffers.
+    smoother: Smoother,
     frame_no: u32,
 }
 
@@ -91,6 +95,7 @@ impl StackMapper {
             pending: vec![Vec::new(); BANDS],
             band_cells,
             los_table: Vec::new(),
+            smoother: Smoother::default(),
             frame_no: 0,
         })
     }
@@ -342,6 +347,7 @@ impl ElevationMapper for StackMapper {
             + self.archive.memory_bytes()
             + self.binned.memory_bytes()
             + self.los_table.capacity() * std::mem::size_of::<f32>()
+            + self.smoother.memory_bytes()
     }
 
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats {
@@ -352,6 +358,16 @@ impl ElevationMapper for StackMapper {
             return UpdateStats::bad_pose(frame, start);
         }
         self.recenter(frame);
+        let smoothed = match (&cfg.depth_smoothing, frame.cloud()) {
+            (Some(d), Cloud::Depth { depth_m, .. }) => {
+                Some(self.smoother.smooth(depth_m, &cfg.sensor, d))
+            }
+            _ => None,
+        };
+        let frame = &match &smoothed {
+            Some(image) => frame.with_depth(image),
+            None => *frame,
+        };
         let band_cells = self.band_cells;
         let size = self.window.size();
         let rej = prepare_binned(
@@ -415,6 +431,9 @@ impl ElevationMapper for StackMapper {
             sz,
             image,
         );
+        if let Some(image) = smoothed {
+            self.smoother.restore(image);
+        }
         UpdateStats {
             points_used: used,
             points_overflow: overflow,
