@@ -177,6 +177,9 @@ impl VisualOdometry {
         }
         self.world_from_prev = world_from_cur;
         self.motion_model.start(frame.t_s, world_from_cur);
+        // No earlier frame gives a velocity, but a gyroscope gives the rotation during the
+        // readout: the first keyframe's points, which anchor the map, get it too.
+        self.shutter = self.readout_motion(&Isometry3::identity(), 1.0, frame.t_s, true);
         timing.track_s = start.elapsed().as_secs_f64();
         let t = Instant::now();
         let tracked = self.tracks.len();

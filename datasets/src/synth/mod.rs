@@ -265,11 +265,32 @@ impl Synth {
     /// [`GYROSCOPE_HZ`] with seeded Gaussian noise ([`GYROSCOPE_NOISE_RAD_S`]), on the
     /// frames' clock (s).
     pub fn gyroscope(&self) -> Vec<crate::accelerometer::GyroSample> {
-        // Samples 50 ms past the last frame, so that its readout lies between samples.
+        // Samples 50 ms past the last frame, so that its readout lies between samples, and
+        // 50 ms before the first, as a robot's gyroscope runs before its camera starts (the
+        // first frame's readout, centred on its time, starts 10 ms before it). The samples
+        // before the first frame draw their noise from a generator of their own, so those
+        // from the first frame on are the same as without them.
         let n = ((self.duration_s() + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
-        self.noisy_samples(n, GYROSCOPE_HZ, GYROSCOPE_NOISE_RAD_S, 0x6E20_5C0E, |t| {
-            self.angular_velocity(t)
-        })
+        let lead = (0.05 * GYROSCOPE_HZ).ceil() as usize;
+        let mut samples = self.noisy_samples(
+            lead,
+            GYROSCOPE_HZ,
+            GYROSCOPE_NOISE_RAD_S,
+            0x6E20_5C0F,
+            |t| self.angular_velocity(t - lead as f64 / GYROSCOPE_HZ),
+        );
+        let shift = lead as f64 / GYROSCOPE_HZ;
+        for s in &mut samples {
+            s.0 -= shift;
+        }
+        samples.extend(self.noisy_samples(
+            n,
+            GYROSCOPE_HZ,
+            GYROSCOPE_NOISE_RAD_S,
+            0x6E20_5C0E,
+            |t| self.angular_velocity(t),
+        ));
+        samples
     }
 
     /// Time from the first frame to the last (s).
