@@ -28,15 +28,16 @@ fn demo_renders_tracks_maps_and_reports() {
     assert_eq!(r["slam"]["frames_tracked"], 30, "{r}");
     assert!(num(&r["slam"], "ate_rmse_m") < 0.01, "{r}");
     // The pipeline's map (SLAM poses) against the same views at ground-truth poses, at the
-    // same coverage. Since the stack map smooths its depth images, the sensor's noise no
-    // longer hides the SLAM's attitude error (0.1-0.3 degree): on the whole lap the SLAM
-    // costs the map 35 % of its error (.ci/run checks it on the full demo), on this 3 s
-    // prefix 32 % (8.6 against 6.5 mm; 16 % before the smoothing, with 2-3x the error).
+    // same coverage. On the whole lap the SLAM costs the map 6 % of its error (the issue's
+    // bound is 10 %; .ci/run checks it on the full demo); on this 3 s prefix, before any
+    // loop closes, 27 % (8.3 against 6.5 mm, measured; 16 % before the stack map smoothed
+    // its depth, which cut the map's own error 2-3x and so exposed the SLAM's attitude
+    // error of 0.1-0.2 degree), hence the wider bound here.
     let (slam, gt) = (
         &r["map"]["slam_poses"],
         &r["map"]["groundtruth_poses_views"],
     );
-    assert!(num(slam, "rmse_m") < 1.5 * num(gt, "rmse_m"), "{r}");
+    assert!(num(slam, "rmse_m") < 1.4 * num(gt, "rmse_m"), "{r}");
     assert!(num(slam, "coverage") > 0.95 * num(gt, "coverage"), "{r}");
     assert_eq!(slam["phantoms"], 0, "{r}");
     // Every frame at ground-truth poses: ours beats the baseline.
