@@ -49,16 +49,17 @@ impl DepthSmoothing {
     pub const MAX_RADIUS_PX: usize = 4;
 
     /// Checks the parameters: the radius within 1 to [`DepthSmoothing::MAX_RADIUS_PX`],
-    /// `sigmas` finite and positive.
+    /// `sigmas` finite and positive (errors name them as keys of the stack map's
+    /// configuration, `depth_smoothing.radius_px` and `depth_smoothing.sigmas`).
     pub fn validate(&self) -> Result<(), MappingError> {
         if !(1..=Self::MAX_RADIUS_PX).contains(&self.radius_px) {
             return Err(MappingError::Parameter {
-                name: "radius_px",
+                name: "depth_smoothing.radius_px",
                 value: self.radius_px as f64,
                 reason: "must lie within 1 to 4 pixels",
             });
         }
-        crate::error::positive("sigmas", self.sigmas)
+        crate::error::positive("depth_smoothing.sigmas", self.sigmas)
     }
 }
 

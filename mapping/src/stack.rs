@@ -5,9 +5,10 @@
 //!
 //! Per frame:
 //!
-//! 0. depth images are first smoothed where they are smooth ([`crate::denoise`], an
-//!    extension: [`StackConfig::depth_smoothing`]), then pass the depth-edge filter ([`crate::input::EdgeFilter`]), the
-//!    sensor front end paper 000 assumes: flying pixels behind foreground edges are dropped;
+//! 0. depth images are first smoothed on their own surfaces ([`crate::denoise`], an
+//!    extension: [`StackConfig::depth_smoothing`]), then pass the depth-edge filter
+//!    ([`crate::input::EdgeFilter`]), the sensor front end paper 000 assumes: flying pixels
+//!    behind foreground edges are dropped;
 //! 1. every point's height and height variance come from its covariance in the map frame
 //!    ([`crate::input`]);
 //! 2. the points of a voxel are fused into its filter (eq. 1). All measurements of one voxel

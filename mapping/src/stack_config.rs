@@ -107,7 +107,8 @@ impl StackConfig {
     /// Checks every parameter ([`super::StackMapper::new`] does): a window of 8 to
     /// [`crate::error::MAX_CELLS_PER_SIDE`] cells per side, positive voxel height and
     /// visibility bin, a depth range with `min < max`, an edge filter's angle within
-    /// (0, 90) degrees. Returns the window's cells per side.
+    /// (0, 90) degrees, a depth smoothing's radius within 1 to 4 pixels and positive
+    /// `sigmas`. Returns the window's cells per side.
     pub fn validate(&self) -> Result<usize, MappingError> {
         let cells = error::window_cells(
             self.resolution_m,

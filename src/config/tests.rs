@@ -112,6 +112,11 @@ fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
         ),
         ("[map.align]\ngain = 1.5\n", "map.align.gain", "0 to 1"),
         (
+            "[map.stack.depth_smoothing]\nradius_px = 9\n",
+            "map.stack.depth_smoothing.radius_px",
+            "1 to 4",
+        ),
+        (
             "[schedule]\nlag_frames = 1000\n",
             "schedule.lag_frames",
             "0 to 100",

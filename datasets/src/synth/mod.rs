@@ -272,16 +272,16 @@ impl Synth {
         // from the first frame on are the same as without them.
         let n = ((self.duration_s() + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
         let lead = (0.05 * GYROSCOPE_HZ).ceil() as usize;
+        let shift_s = lead as f64 / GYROSCOPE_HZ;
         let mut samples = self.noisy_samples(
             lead,
             GYROSCOPE_HZ,
             GYROSCOPE_NOISE_RAD_S,
             0x6E20_5C0F,
-            |t| self.angular_velocity(t - lead as f64 / GYROSCOPE_HZ),
+            |t| self.angular_velocity(t - shift_s),
         );
-        let shift = lead as f64 / GYROSCOPE_HZ;
         for s in &mut samples {
-            s.0 -= shift;
+            s.0 -= shift_s;
         }
         samples.extend(self.noisy_samples(
             n,
