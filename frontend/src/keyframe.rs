@@ -216,6 +216,42 @@ impl VisualOdometry {
             depth,
         })
     }
+
+    /// Re-aligns tracks with their keyframe appearance (see [`crate::klt::realign`]), one
+    /// Lucas-Kanade call per origin keyframe; drops the tracks that do not re-align.
+    pub(crate) fn realign(
+        &self,
+        tracks: Vec<Track>,
+        current: &Pyramid,
+        max_correction_px: f32,
+    ) -> Result<Vec<Track>, FrontendError> {
+        let mut out = Vec::with_capacity(tracks.len());
+        for (k, kf_pyr) in &self.kf_pyramids {
+            let group: Vec<&Track> = tracks.iter().filter(|t| t.origin_kf == *k).collect();
+            if group.is_empty() {
+                continue;
+            }
+            let origins: Vec<Point2f> = group.iter().map(|t| t.origin_px).collect();
+            let tracked: Vec<Point2f> = group.iter().map(|t| t.px).collect();
+            let refined = crate::klt::realign(
+                kf_pyr,
+                current,
+                &origins,
+                &tracked,
+                max_correction_px,
+                &self.config,
+            )?;
+            for (t, r) in group.into_iter().zip(refined) {
+                if let Some(px) = r {
+                    out.push(Track { px, ..t.clone() });
+                }
+            }
+        }
+        // Keep the frame-to-frame order (by track id) so that results do not depend on the
+        // grouping.
+        out.sort_by_key(|t| t.id);
+        Ok(out)
+    }
 }
 
 /// Information-weighted fusion of an observation into a track's point (a Kalman update
