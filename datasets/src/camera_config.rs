@@ -257,10 +257,10 @@ impl CameraFile {
 mod tests {
     use super::*;
 
-    fn write(name: &str, text: &str) -> std::path::PathBuf {
-        let dir = std::env::temp_dir().join(format!("stride-cam-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let p = dir.join(name);
+    /// Writes `text` to `name` in `dir` (each test's own temporary folder, removed when the
+    /// test ends).
+    fn write(dir: &tempfile::TempDir, name: &str, text: &str) -> std::path::PathBuf {
+        let p = dir.path().join(name);
         std::fs::write(&p, text).unwrap();
         p
     }
@@ -279,7 +279,9 @@ mod tests {
 
     #[test]
     fn reads_json_toml_and_yaml_ignoring_unknown_keys() {
+        let dir = tempfile::tempdir().unwrap();
         let json = write(
+            &dir,
             "c.json",
             r#"{"fx": 500, "fy": 501, "cx": 320, "cy": 240, "width": 640, "height": 480,
                "depth_scale": 1000, "distortion": [0.1, 0.01, 0, 0], "note": "ignored"}"#,
@@ -289,6 +291,7 @@ mod tests {
         assert_eq!(c.depth_scale, 1000.0);
         assert_eq!(c.camera.distortion().unwrap().k3, 0.0);
         let toml = write(
+            &dir,
             "c.toml",
             "fx = 500.0\nfy = 500.0\ncx = 320.0\ncy = 240.0\nwidth = 640\nheight = 480\ndepth_scale = 5000.0\nmodel = \"x\"\n",
         );
@@ -298,6 +301,7 @@ mod tests {
             .distortion()
             .is_none());
         let yaml = write(
+            &dir,
             "c.yaml",
             "fx: 500\nfy: 500\ncx: 320\ncy: 240\nwidth: 640\nheight: 480\ndepth_scale: 5000\ndistortion: [0.1, 0, 0, 0, 0.2]\n",
         );
@@ -311,7 +315,7 @@ mod tests {
             0.2
         );
         // Round trip through the JSON writer.
-        let back = write("back.json", &c.to_json());
+        let back = write(&dir, "back.json", &c.to_json());
         assert_eq!(CameraConfig::from_file(&back).unwrap(), c);
     }
 
@@ -354,8 +358,10 @@ mod tests {
 
     #[test]
     fn orbslam_settings_give_the_same_camera_as_the_presets() {
+        let dir = tempfile::tempdir().unwrap();
         // ORB-SLAM2's TUM3.yaml (no image size, no distortion) and an ORB-SLAM3 1.0 file.
         let orb2 = write(
+            &dir,
             "TUM3.yaml",
             "%YAML:1.0\n# c\nCamera.fx: 535.4\nCamera.fy: 539.2\nCamera.cx: 320.1\nCamera.cy: 247.6\n\
              Camera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\nDepthMapFactor: 5000.0\n",
@@ -365,6 +371,7 @@ mod tests {
             CameraConfig::preset("fr3").unwrap()
         );
         let orb3 = write(
+            &dir,
             "TUM1.yaml",
             "%YAML:1.0\nFile.version: \"1.0\"\nCamera.type: \"PinHole\"\nCamera1.fx: 517.306408\n\
              Camera1.fy: 516.469215\nCamera1.cx: 318.643040\nCamera1.cy: 255.313989\n\
@@ -376,7 +383,11 @@ mod tests {
             CameraConfig::from_file(&orb3).unwrap(),
             CameraConfig::preset("fr1").unwrap()
         );
-        let bad = write("bad.yaml", "%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: x\n");
+        let bad = write(
+            &dir,
+            "bad.yaml",
+            "%YAML:1.0\nCamera.fx: 535.4\nCamera.fy: x\n",
+        );
         let e = CameraConfig::from_file(&bad).unwrap_err().to_string();
         assert!(
             e.contains("bad.yaml:3: ORB-SLAM settings: Camera.fy: 'x' is not a finite number"),
@@ -386,7 +397,9 @@ mod tests {
 
     #[test]
     fn bad_camera_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
         let missing_key = write(
+            &dir,
             "m.json",
             r#"{"fx": 500, "fy": 500, "cx": 1, "cy": 1, "width": 640, "height": 480}"#,
         );
@@ -398,6 +411,7 @@ mod tests {
             "{e}"
         );
         let negative = write(
+            &dir,
             "n.yaml",
             "fx: -1\nfy: 500\ncx: 1\ncy: 1\nwidth: 640\nheight: 480\ndepth_scale: 5000\n",
         );
@@ -406,7 +420,7 @@ mod tests {
             e.contains("n.yaml: camera parameter fx = -1 is invalid: must be positive"),
             "{e}"
         );
-        let bad_dist = write("d.toml", "fx = 1.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 4\nheight = 4\ndepth_scale = 1.0\ndistortion = [1.0]\n");
+        let bad_dist = write(&dir, "d.toml", "fx = 1.0\nfy = 1.0\ncx = 1.0\ncy = 1.0\nwidth = 4\nheight = 4\ndepth_scale = 1.0\ndistortion = [1.0]\n");
         assert!(CameraConfig::from_file(&bad_dist)
             .unwrap_err()
             .to_string()

@@ -65,17 +65,19 @@ pub(crate) fn non_negative(name: &'static str, value: f64) -> Result<(), Mapping
     }
 }
 
-/// Checks a depth range `[min_m, max_m]` (m): finite, not negative, min below max.
+/// Checks a sensor model's depth range `[min_m, max_m]` (m): finite, not negative, min
+/// below max. Errors name the keys as a configuration file spells them
+/// (`sensor.min_depth_m`, `sensor.max_depth_m`).
 pub(crate) fn depth_range(min_m: f64, max_m: f64) -> Result<(), MappingError> {
-    non_negative("min_depth_m", min_m)?;
-    positive("max_depth_m", max_m)?;
+    non_negative("sensor.min_depth_m", min_m)?;
+    positive("sensor.max_depth_m", max_m)?;
     if min_m < max_m {
         Ok(())
     } else {
         Err(MappingError::Parameter {
-            name: "max_depth_m",
+            name: "sensor.max_depth_m",
             value: max_m,
-            reason: "must exceed min_depth_m",
+            reason: "must exceed sensor.min_depth_m",
         })
     }
 }

@@ -187,16 +187,17 @@ pub struct EdgeFilter {
 
 impl EdgeFilter {
     /// Checks the parameters: the angle within (0, 90) degrees, `sigmas` finite and not
-    /// negative.
+    /// negative. Errors name the keys as a configuration file spells them
+    /// (`edge_filter.min_grazing_rad`, `edge_filter.sigmas`).
     pub fn validate(&self) -> Result<(), MappingError> {
         if !(self.min_grazing_rad > 0.0 && self.min_grazing_rad < std::f64::consts::FRAC_PI_2) {
             return Err(MappingError::Parameter {
-                name: "min_grazing_rad",
+                name: "edge_filter.min_grazing_rad",
                 value: self.min_grazing_rad,
                 reason: "must lie strictly between 0 and pi/2",
             });
         }
-        crate::error::non_negative("sigmas", self.sigmas)
+        crate::error::non_negative("edge_filter.sigmas", self.sigmas)
     }
 }
 

@@ -381,7 +381,7 @@ fn mappers_refuse_invalid_parameters() {
             sensor,
             ..d.clone()
         }),
-        "max_depth_m"
+        "sensor.max_depth_m"
     );
     let edge_filter = Some(crate::input::EdgeFilter {
         min_grazing_rad: 2.0,
@@ -392,7 +392,7 @@ fn mappers_refuse_invalid_parameters() {
             edge_filter,
             ..d.clone()
         }),
-        "min_grazing_rad"
+        "edge_filter.min_grazing_rad"
     );
     assert!(StackMapper::new(StackConfig {
         lookahead_m: -1.0,

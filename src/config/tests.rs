@@ -117,6 +117,16 @@ fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
             "1 to 4",
         ),
         (
+            "[map.stack.edge_filter]\nsigmas = -1.0\n",
+            "map.stack.edge_filter.sigmas",
+            "not negative",
+        ),
+        (
+            "[map.stack.sensor]\nmin_depth_m = 5.0\nmax_depth_m = 1.0\n",
+            "map.stack.sensor.max_depth_m",
+            "must exceed sensor.min_depth_m",
+        ),
+        (
             "[schedule]\nlag_frames = 1000\n",
             "schedule.lag_frames",
             "0 to 100",
