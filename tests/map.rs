@@ -31,7 +31,7 @@ fn synthetic(dir: &Path) {
 
 /// Flying pixels add no cell to the cells seen: one near the end of a box's shadow can lie
 /// within the height tolerance of the hidden floor, but its ray meets the floor only farther
-/// on (docs/mapping.md, "Box terrain and the cells seen, corrected"). The same 40-frame
+/// on (docs/mapping-studies.md, "Box terrain and the cells seen, corrected"). The same 40-frame
 /// crawl over boxes with the generator's default flying pixels (0.1) and without any:
 /// measured 23,088 against 23,066 cells seen (24,250 against 23,212 before the ray test),
 /// and the stack map covers 0.949 and 0.952 of them (0.955 and 0.957 before the depth

@@ -18,7 +18,7 @@
 //! frame to the next, which the odometry predicts before Lucas-Kanade tracks (the
 //! constant-velocity prediction keeps its translation): at 30 Hz the lab's shake moves the
 //! image 4 px per frame and the pyramid absorbs any guess, but with frames 100-170 ms apart
-//! (dropped frames, a slow camera) the prediction matters (docs/slam.md). The rate around
+//! (dropped frames, a slow camera) the prediction matters (docs/blur.md). The rate around
 //! each frame also tells the keyframe decision when a foot's impact has jolted the camera
 //! (`crate::keyframe`).
 

@@ -12,8 +12,8 @@
 //! put it.
 //!
 //! On teddy_200 the SLAM's orientation errors (about 0.3 degree from view to view) made the
-//! map's floor rougher than the same views' at ground-truth poses; see docs/mapping.md for
-//! what the passes measured.
+//! map's floor rougher than the same views' at ground-truth poses; see
+//! docs/mapping-studies.md ("All views against each other") for what the passes measured.
 
 use super::{PipelineError, Terrain};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
