@@ -387,6 +387,17 @@ impl Chart {
         if let Some(c) = &self.colored {
             entries.push((c.label.as_str(), "rgb(33,144,141)".to_owned(), Style::Line));
         }
+        // A light backdrop, so that the entries stay readable over a map or dense lines.
+        if let Some(longest) = entries.iter().map(|(l, _, _)| l.chars().count()).max() {
+            let _ = write!(
+                out,
+                r##"<rect class="legend" x="{:.1}" y="{:.1}" width="{:.1}" height="{:.1}" rx="3" fill="#ffffff" fill-opacity="0.8"/>"##,
+                f.x + 4.0,
+                f.y + 2.0,
+                30.0 + 6.2 * longest as f64,
+                15.0 * entries.len() as f64 + 4.0
+            );
+        }
         for (label, color, style) in entries {
             let lx = f.x + 8.0;
             match style {
@@ -559,6 +570,9 @@ mod tests {
         let svg = render(&[chart], 1, 400.0, 300.0);
         // The PNG's bytes as a data URI ("png" in base64), and the bar's title and ends.
         assert!(svg.contains("href=\"data:image/png;base64,cG5n\""), "{svg}");
+        // The legend sits on a backdrop drawn after the raster, so it stays readable.
+        let (image, backdrop) = (svg.find("<image"), svg.find("<rect class=\"legend\""));
+        assert!(image.is_some() && backdrop > image, "{svg}");
         assert!(svg.contains("height (m)"));
         assert!(svg.contains(">0.4<") || svg.contains(">0.5<"), "{svg}");
         // On equal axes the image would span twice as wide as high; here it just has a size.
