@@ -47,11 +47,12 @@ fn demo_renders_tracks_maps_and_reports() {
     assert_eq!(ours["phantoms"], 0, "{r}");
     // The page is self-contained: its images are embedded, none is linked.
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();
-    assert!(html.contains("src=\"data:image/png;base64,"));
+    assert!(html.contains("href=\"data:image/png;base64,"));
     assert!(html.contains("src=\"data:image/svg+xml;base64,"));
     assert!(!html.contains("src=\"sequence/"));
     for part in [
         "Trajectory from above",
+        "True terrain",
         "Pipeline map (SLAM poses)",
         "height (m)",
     ] {

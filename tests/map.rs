@@ -119,7 +119,9 @@ fn stack_map_beats_the_baseline_and_leaves_no_phantoms() {
     ] {
         assert!(tmp.path().join("both/stack").join(file).is_file(), "{file}");
     }
-    assert!(tmp.path().join("both/report.html").is_file());
+    let html = std::fs::read_to_string(tmp.path().join("both/report.html")).unwrap();
+    // Each map beside its error against the true terrain.
+    assert_eq!(html.matches("Map error against the true terrain").count(), 2);
 
     // Beside the naive per-cell median and the cells seen (measurements on the true
     // surface, their rays meeting it), every map is scored over the cells seen. Measured:
@@ -195,6 +197,16 @@ fn teddy_floor_is_flat_within_a_few_centimetres() {
         html.contains("data:image/png;base64,") && html.contains("Floor:"),
         "the preview (embedded) and the floor fit are in the report"
     );
+    // The map is a figure on metric axes with its colour bar, a scale bar and the path.
+    for part in [
+        "world x (m)",
+        "world y (m)",
+        "height (m)",
+        "scale bar:",
+        "walked path",
+    ] {
+        assert!(html.contains(part), "{part}");
+    }
 }
 
 #[test]

@@ -377,9 +377,16 @@ fn write_report(
         "The SLAM's final trajectory against ground truth, in the world frame, and the odometry's own poses before the back end's corrections: the odometry drifts as it goes round, and the back end (bundle adjustment over the map's points, and loop closure when the robot comes back to its start) pulls the path back onto the ground truth. The table gives both errors.",
     );
     rep.heading("Terrain");
-    rep.image(
-        "sequence/terrain.png",
-        "The true terrain (colour relief, +y up); objects are left out of it (NaN).",
+    let gt_path = top(&st.synth.groundtruth);
+    rep.figure(
+        "terrain",
+        render(
+            &[elevation_chart("True terrain", &st.truth, &gt_path)?],
+            1,
+            540.0,
+            470.0,
+        ),
+        "The true terrain as a colour relief (height on the colour bar), with the walked path; objects are left out of it (grey).",
     );
     let path = top(&slam_traj);
     let mut maps = vec![elevation_chart(
@@ -397,7 +404,6 @@ fn write_report(
         render(&maps, 2, 540.0, 470.0),
         "Left: the map the pipeline built from its views (every second frame) at their optimized poses, with the walked path. Right: its error against the true terrain. Grey: unknown.",
     );
-    let gt_path = top(&st.synth.groundtruth);
     let mut gt_maps = vec![elevation_chart(
         "Same views, ground-truth poses",
         &st.map_views_gt.layers.elevation,

@@ -1,5 +1,6 @@
 //! `stride map`: elevation mapping of a sequence with known poses.
 
+use crate::cli::map_figures::{elevation_chart, error_chart};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
@@ -11,6 +12,7 @@ use stride_core::rng::SplitMix64;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::grid_file::{read_grid, relief_png, surface_ply, write_header, write_layer};
 use stride_datasets::trajectory_file::read_tum_trajectory;
+use stride_eval::plot::render;
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
 use stride_mapping::metrics::performance_index;
@@ -324,6 +326,27 @@ pub fn run(a: MapArgs) -> Result<()> {
     Ok(())
 }
 
+/// The sensor's path (world x, y; m) over the frames mapped: the poses within the time span
+/// of the first `max_frames` depth images (all of them without a limit).
+fn sensor_path(
+    poses: &Trajectory,
+    depth_times_s: &[f64],
+    max_frames: Option<usize>,
+) -> Vec<(f64, f64)> {
+    let last = max_frames.map_or(depth_times_s.len(), |m| m.min(depth_times_s.len()));
+    let (Some(&t0), Some(&t1)) = (
+        depth_times_s.first(),
+        depth_times_s.get(last.saturating_sub(1)),
+    ) else {
+        return Vec::new();
+    };
+    poses
+        .iter()
+        .filter(|(t, _)| (t0..=t1).contains(t))
+        .map(|(_, p)| (p.translation.x, p.translation.y))
+        .collect()
+}
+
 /// Maps the sequence and writes everything into `a.out`; returns the report.json object,
 /// the runs and the frame counts.
 pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
@@ -392,6 +415,7 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     // output or the complete new one.
     let staged = StagedDir::new(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let out = staged.path();
+    let path = sensor_path(&poses, &seq.depth_times_s(), a.max_frames);
     let mut report = Map::new();
     let mut rep = Report::new("stride map: elevation map");
     rep.paragraph(format!("Dataset {}; poses {}{}; {} of {} frames mapped ({} outside the poses' time span, {} unreadable).", a.dataset.display(), a.poses, if a.drift > 0.0 { format!(" with {} % drift (seed {})", a.drift, a.seed) } else { String::new() }, counts.mapped, counts.frames, counts.no_pose, counts.unreadable));
@@ -438,12 +462,23 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
                 )
             }),
         ]);
-        let rel = if runs.len() > 1 {
-            format!("{}/elevation.png", r.name)
-        } else {
-            "elevation.png".to_owned()
-        };
-        let mut caption = format!("{}: elevation (colour relief, +y up).", r.name);
+        let mut charts = vec![elevation_chart(
+            &format!("{}: elevation", r.name),
+            &r.layers.elevation,
+            &path,
+        )?];
+        if let Some(g) = &gt {
+            charts.extend(error_chart(&r.layers.elevation, g, &path)?);
+        }
+        let mut caption = format!(
+            "{}: the map as a colour relief (height on the colour bar) with the sensor's path{}. Grey: unknown.",
+            r.name,
+            if charts.len() > 1 {
+                "; right: its error against the true terrain"
+            } else {
+                ""
+            }
+        );
         if let Some(f) = &r.floor {
             caption.push_str(&format!(
                 " Floor: {} cells ({:.0} % of the map) fit a plane tilted {:.2} deg from the world x-y plane; heights about it: std {:.1} cm, 95 % within {:.1} cm.",
@@ -463,7 +498,11 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
                 100.0 * p.max_excess_m
             ));
         }
-        rep.image(&rel, caption);
+        rep.figure(
+            &format!("{}_map", r.name),
+            render(&charts, 2, 540.0, 470.0),
+            caption,
+        );
         if runs.len() > 1 {
             report.insert(r.name.into(), j);
         } else {

@@ -1,9 +1,11 @@
 //! `stride synth`: synthetic legged-robot RGB-D sequences with ground truth.
 
+use crate::cli::map_figures::elevation_chart;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use std::path::{Path, PathBuf};
 use stride_datasets::camera_config::CameraConfig;
+use stride_datasets::grid_file::read_grid;
 use stride_datasets::png_io::read_rgb;
 use stride_datasets::synth::motion::{Gait, MotionConfig, PathKind};
 use stride_datasets::synth::{generate, SynthConfig, SynthError, SynthSummary, TerrainSource};
@@ -293,9 +295,22 @@ pub fn blur_report(summary: &SynthSummary, fps: f64) -> Result<String> {
         summary.frames.len(),
         dir.display()
     ));
-    rep.image(
-        "terrain.png",
-        "Ground-truth elevation (colour relief, +y up).",
+    let truth = read_grid(&dir.join("terrain.npy"), None).context("reading the terrain back")?;
+    let path: Vec<(f64, f64)> = summary
+        .groundtruth
+        .positions()
+        .iter()
+        .map(|p| (p.x, p.y))
+        .collect();
+    rep.figure(
+        "terrain",
+        render(
+            &[elevation_chart("True terrain", &truth, &path)?],
+            1,
+            540.0,
+            470.0,
+        ),
+        "The ground-truth terrain as a colour relief (height on the colour bar), with the camera's path; objects are left out of it (grey).",
     );
     rep.heading("Motion blur over the gait");
     rep.paragraph(text.clone());
