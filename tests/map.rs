@@ -121,7 +121,10 @@ fn stack_map_beats_the_baseline_and_leaves_no_phantoms() {
     }
     let html = std::fs::read_to_string(tmp.path().join("both/report.html")).unwrap();
     // Each map beside its error against the true terrain.
-    assert_eq!(html.matches("Map error against the true terrain").count(), 2);
+    assert_eq!(
+        html.matches("Map error against the true terrain").count(),
+        2
+    );
 
     // Beside the naive per-cell median and the cells seen (measurements on the true
     // surface, their rays meeting it), every map is scored over the cells seen. Measured:

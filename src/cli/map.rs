@@ -105,6 +105,9 @@ pub struct MapArgs {
     /// Turn off the stack mapper's depth-edge (flying pixel) filter.
     #[arg(long)]
     pub no_edge_filter: bool,
+    /// Turn off the stack mapper's depth smoothing (it then bins the depth as measured).
+    #[arg(long)]
+    pub no_depth_smoothing: bool,
     /// Write the stack map without the median filter (hole filling, isolated-cell removal).
     #[arg(long)]
     pub no_median_filter: bool,
@@ -156,6 +159,7 @@ pub fn stack_config(a: &MapArgs) -> Result<StackConfig> {
         visibility_check: d.visibility_check && !a.no_visibility,
         see_through_check: d.see_through_check && !a.no_see_through,
         edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
+        depth_smoothing: d.depth_smoothing.filter(|_| !a.no_depth_smoothing),
         median_filter: d.median_filter.filter(|_| !a.no_median_filter),
         ..d
     })

@@ -26,6 +26,9 @@ pub struct MapBenchArgs {
     /// Time the stack mapper without the see-through check.
     #[arg(long)]
     no_see_through: bool,
+    /// Time the stack mapper without its depth smoothing.
+    #[arg(long)]
+    no_depth_smoothing: bool,
     /// Python of a throwaway venv with pyoctomap and numpy: compare our maps with OctoMap
     /// on the same clouds (paper 000's Table 2) through scripts/peers/octomap_peer.py
     /// (never a project dependency), both mappers with their default settings. Ray casting
@@ -109,6 +112,7 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
             visibility_check: !a.no_visibility,
             see_through_check: !a.no_see_through,
+            depth_smoothing: d.depth_smoothing.filter(|_| !a.no_depth_smoothing),
             ..d
         })?));
     }
