@@ -77,7 +77,9 @@ pub struct MapArgs {
     #[arg(long, value_name = "FILE.toml")]
     pub config: Option<PathBuf>,
     /// Ground-truth elevation (.npy with its .json or grid.json beside it) to evaluate
-    /// against [default: the folder's terrain.npy when present].
+    /// against, in the poses' world [default: with `--poses groundtruth`, the folder's
+    /// terrain.npy when present; with a pose file, none, since its world (a `stride run`'s
+    /// gravity-aligned one) is not the ground truth's unless it says so].
     #[arg(long, value_name = "FILE.npy")]
     pub gt_terrain: Option<PathBuf>,
     /// Perturb the poses with a random-walk drift of this many percent of the distance
@@ -375,10 +377,22 @@ pub fn execute(a: &MapArgs) -> Result<(Value, Vec<MapperRun>, FrameCounts)> {
     } else {
         poses
     };
-    let gt_path = a
-        .gt_terrain
-        .clone()
-        .or_else(|| Some(a.dataset.join("terrain.npy")).filter(|p| p.is_file()));
+    // The folder's true terrain is in the ground truth's world: poses from a file are
+    // scored against it only when the user says they share it.
+    let folder_terrain = Some(a.dataset.join("terrain.npy")).filter(|p| p.is_file());
+    let gt_path = match (&a.gt_terrain, folder_terrain) {
+        (Some(p), _) => Some(p.clone()),
+        (None, Some(p)) if a.poses == "groundtruth" => Some(p),
+        (None, Some(p)) => {
+            tracing::info!(
+                "not scored against {}: it is in the ground truth's world, which --poses {} need not share (pass --gt-terrain to score)",
+                p.display(),
+                a.poses
+            );
+            None
+        }
+        (None, None) => None,
+    };
     let gt = match &gt_path {
         Some(p) => Some(read_grid(p, None).context("reading the ground-truth terrain")?),
         None => None,
