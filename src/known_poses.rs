@@ -101,7 +101,7 @@ pub fn map_sequence(
         let decoded = match item {
             Ok(d) => d,
             Err(StreamError::Frame(f)) => {
-                tracing::warn!("frame {} skipped: {}", f.index, f.error);
+                crate::pipeline::warn_skipped(counts.unreadable, f.index, &f.error);
                 counts.unreadable += 1;
                 continue;
             }

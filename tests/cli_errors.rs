@@ -247,3 +247,50 @@ fn the_configuration_file_is_documented_checked_and_overridden_by_flags() {
     );
     assert_eq!(m["stack_config"]["resolution_m"], 0.05);
 }
+
+#[test]
+fn a_camera_of_the_wrong_size_lists_a_few_frames_then_the_error() {
+    let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
+        return;
+    };
+    let teddy = teddy.to_str().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let camera = tmp.path().join("small.json");
+    std::fs::write(
+        &camera,
+        r#"{"fx": 535.4, "fy": 539.2, "cx": 160.0, "cy": 120.0, "width": 320, "height": 240, "depth_scale": 5000}"#,
+    )
+    .unwrap();
+    let c = camera.to_str().unwrap();
+    for command in ["run", "map"] {
+        let out = tmp.path().join(command);
+        let o = out.to_str().unwrap();
+        let err = fails(&[
+            command,
+            "--dataset",
+            teddy,
+            "--camera",
+            c,
+            "--out",
+            o,
+            "--max-frames",
+            "12",
+        ]);
+        // Every frame fails the same way: the first few are listed, then the error.
+        assert!(
+            err.contains("image is 640x480 but the camera is 320x240"),
+            "{err}"
+        );
+        assert_eq!(err.matches(" skipped: ").count(), 6, "{command}: {err}");
+        assert!(
+            err.contains("further skipped frames are counted, not listed"),
+            "{err}"
+        );
+        // Nothing about a world frame or a map, which no frame could give.
+        assert!(
+            !err.contains("no floor seen") && !err.contains("no elevation map"),
+            "{err}"
+        );
+        assert!(!out.exists(), "{command}: nothing written");
+    }
+}

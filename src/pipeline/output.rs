@@ -309,3 +309,20 @@ impl RunOutput {
         Ok(t)
     }
 }
+
+/// Frames that could not be read are logged one by one up to this many; the rest only
+/// counted (reports list every one), so that a systematic fault (a camera file of the wrong
+/// size) does not bury the error that follows under a line per frame.
+pub const SKIPS_LISTED: usize = 5;
+
+/// Logs frame `index` as skipped for `reason`, given how many were skipped before it: one
+/// line each for the first [`SKIPS_LISTED`], then one line saying the rest are counted.
+pub fn warn_skipped(skipped_before: usize, index: usize, reason: &dyn std::fmt::Display) {
+    if skipped_before < SKIPS_LISTED {
+        tracing::warn!("frame {index} skipped: {reason}");
+    } else if skipped_before == SKIPS_LISTED {
+        tracing::warn!(
+            "frame {index} skipped: {reason}; further skipped frames are counted, not listed"
+        );
+    }
+}

@@ -48,6 +48,8 @@ pub struct Slam {
     vo_wall_s: f64,
     /// Wall time in [`Slam::process`], [`Slam::skip`] and [`Slam::finish`] (s).
     wall_s: f64,
+    /// Frames skipped so far.
+    skipped: usize,
 }
 
 impl Slam {
@@ -96,6 +98,7 @@ impl Slam {
             frames: Vec::new(),
             vo_wall_s: 0.0,
             wall_s: 0.0,
+            skipped: 0,
         })
     }
 
@@ -238,7 +241,8 @@ impl Slam {
     ) -> Result<FrameRecord, PipelineError> {
         let start = Instant::now();
         let (wait_s, correction) = self.take_due()?;
-        tracing::warn!("frame {index} skipped: {reason}");
+        super::warn_skipped(self.skipped, index, &reason);
+        self.skipped += 1;
         let pose = self.vo.predict(t_s);
         let kf_id = self.vo.current_keyframe().map_or(0, |(id, _)| id);
         let record = FrameRecord {
@@ -355,7 +359,13 @@ impl Slam {
             }
             self.world_at(&out.frames, &poses)
         });
+        // With no frame read there is nothing to say about the world: the caller reports
+        // the unread frames.
+        let any_read = out.frames.iter().any(|f| f.status != FrameStatus::Skipped);
         out.world = world.unwrap_or_else(|| {
+            if !any_read {
+                return WorldFrame::first_camera();
+            }
             tracing::warn!(
                 "{}: poses are in the first camera's frame (y down), not gravity-aligned",
                 if self.reference.is_some() {
