@@ -29,7 +29,8 @@ pub mod world;
 
 pub use coupling::Schedule;
 pub use error::PipelineError;
-pub use output::{warn_skipped, BackendSummary, FrameRecord, FrameStatus, RunOutput, SKIPS_LISTED};
+pub(crate) use output::warn_skipped;
+pub use output::{BackendSummary, FrameRecord, FrameStatus, RunOutput};
 pub use sequence::run_sequence;
 pub use stats::{median_p95, slam_ate_options};
 
@@ -250,7 +251,7 @@ impl Pipeline {
         let run = self.slam.finish()?;
         let map = match self.terrain {
             Some(_) if !run.world.is_gravity_aligned() => {
-                if run.frames.iter().any(|f| f.status != FrameStatus::Skipped) {
+                if run.read_any_frame() {
                     tracing::warn!(
                         "no elevation map: the world frame is not gravity-aligned (no floor seen, no mounting given)"
                     );

@@ -149,6 +149,12 @@ pub struct RunOutput {
 }
 
 impl RunOutput {
+    /// Whether any frame could be read (a run of only skipped frames has no world and no
+    /// map to speak of).
+    pub fn read_any_frame(&self) -> bool {
+        self.frames.iter().any(|f| f.status != FrameStatus::Skipped)
+    }
+
     /// Moves every pose and point from the SLAM's frame into the world
     /// (`self.world.world_from_slam`).
     pub(crate) fn move_to_world(&mut self) {
@@ -313,11 +319,11 @@ impl RunOutput {
 /// Frames that could not be read are logged one by one up to this many; the rest only
 /// counted (reports list every one), so that a systematic fault (a camera file of the wrong
 /// size) does not bury the error that follows under a line per frame.
-pub const SKIPS_LISTED: usize = 5;
+pub(crate) const SKIPS_LISTED: usize = 5;
 
 /// Logs frame `index` as skipped for `reason`, given how many were skipped before it: one
 /// line each for the first [`SKIPS_LISTED`], then one line saying the rest are counted.
-pub fn warn_skipped(skipped_before: usize, index: usize, reason: &dyn std::fmt::Display) {
+pub(crate) fn warn_skipped(skipped_before: usize, index: usize, reason: &dyn std::fmt::Display) {
     if skipped_before < SKIPS_LISTED {
         tracing::warn!("frame {index} skipped: {reason}");
     } else if skipped_before == SKIPS_LISTED {

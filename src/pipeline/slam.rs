@@ -48,8 +48,6 @@ pub struct Slam {
     vo_wall_s: f64,
     /// Wall time in [`Slam::process`], [`Slam::skip`] and [`Slam::finish`] (s).
     wall_s: f64,
-    /// Frames skipped so far.
-    skipped: usize,
 }
 
 impl Slam {
@@ -98,7 +96,6 @@ impl Slam {
             frames: Vec::new(),
             vo_wall_s: 0.0,
             wall_s: 0.0,
-            skipped: 0,
         })
     }
 
@@ -241,8 +238,12 @@ impl Slam {
     ) -> Result<FrameRecord, PipelineError> {
         let start = Instant::now();
         let (wait_s, correction) = self.take_due()?;
-        super::warn_skipped(self.skipped, index, &reason);
-        self.skipped += 1;
+        let skipped_before = self
+            .frames
+            .iter()
+            .filter(|f| f.status == FrameStatus::Skipped)
+            .count();
+        super::warn_skipped(skipped_before, index, &reason);
         let pose = self.vo.predict(t_s);
         let kf_id = self.vo.current_keyframe().map_or(0, |(id, _)| id);
         let record = FrameRecord {
@@ -361,7 +362,7 @@ impl Slam {
         });
         // With no frame read there is nothing to say about the world: the caller reports
         // the unread frames.
-        let any_read = out.frames.iter().any(|f| f.status != FrameStatus::Skipped);
+        let any_read = out.read_any_frame();
         out.world = world.unwrap_or_else(|| {
             if !any_read {
                 return WorldFrame::first_camera();
