@@ -425,7 +425,15 @@ impl Backend {
             self.map.remove_observation(p, k);
         }
         if !outliers.is_empty() {
-            let mut again = build(&self.map, free, &gauge, true, &[], max_fixed, &self.config);
+            let mut again = build(
+                &self.map,
+                free,
+                &gauge,
+                true,
+                &self.pose_edges,
+                max_fixed,
+                &self.config,
+            );
             solve(&mut again.problem, &opts)?;
             again.write_back(&mut self.map);
         }

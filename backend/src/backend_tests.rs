@@ -426,3 +426,54 @@ fn optimizing_every_second_keyframe_still_removes_the_drift() {
         e_odo * 1e3
     );
 }
+
+#[test]
+fn a_depth_link_still_holds_after_the_outliers_are_removed() {
+    // Keyframe 8 has no depth measurement of its own, and its odometry is 5 cm off: only
+    // its depth link (the true relative pose, 1 mm) says where it is. Keyframe 9 carries three
+    // outliers, so the window optimized when it arrives is solved a second time
+    // without it; that second solve must keep the link too.
+    let mut run = synthetic_run(12, 0.0, 4);
+    for f in &mut run.inputs[8].info.features {
+        f.measurement = None;
+    }
+    let truth_7_from_8 = run.truth[7].inverse() * run.truth[8];
+    let off = Isometry3::translation(0.05, 0.0, 0.0);
+    if let Some(o) = run.inputs[8].info.odometry.as_mut() {
+        o.previous_from_this = truth_7_from_8 * off;
+        o.inliers = 10;
+    }
+    run.inputs[8].info.depth = Some(stride_frontend::DepthLink {
+        previous_id: 7,
+        previous_from_this: truth_7_from_8,
+        information: Matrix6::identity() * 1e6,
+    });
+    for f in run.inputs[10].info.features.iter_mut().take(3) {
+        if let Some(m) = f.measurement.as_mut() {
+            m.p += Vector3::new(0.3, -0.2, 0.4);
+        }
+    }
+    // A gate wide open lets the outliers be associated, for the solve to find them.
+    let mut cfg = BackendConfig::default();
+    cfg.matching.chi2_gate = 1e9;
+    let mut backend = Backend::new(camera(), cfg).unwrap();
+    let mut outliers = 0;
+    for input in run.inputs.iter().take(11).cloned() {
+        let u = backend.add_keyframe(input).unwrap();
+        if u.report.keyframe_id == 8 {
+            assert!(u.report.depth_edge, "the link joined the map");
+        }
+
+        if u.report.keyframe_id == 10 {
+            outliers = u.report.outliers;
+        }
+    }
+    assert!(
+        outliers > 0,
+        "the outlier was found, so the window was solved again"
+    );
+    let map = backend.map();
+    let est_7_from_8 = map.pose_of(7).unwrap().inverse() * map.pose_of(8).unwrap();
+    let error_m = (est_7_from_8.translation.vector - truth_7_from_8.translation.vector).norm();
+    assert!(error_m < 0.005, "keyframe 8 is {:.1} mm off", error_m * 1e3);
+}
