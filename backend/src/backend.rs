@@ -32,6 +32,9 @@ pub struct KeyframeInput {
     pub world_from_camera: Isometry3<f64>,
     /// Features and odometry link.
     pub info: KeyframeInfo,
+    /// The keyframe's depth image (m along the optical axis, 0 where none), for the
+    /// revisit links ([`crate::RevisitConfig`]); `None` leaves the keyframe without one.
+    pub depth_m: Option<stride_core::image::DepthImage>,
 }
 
 /// What happened to one keyframe.
@@ -52,6 +55,8 @@ pub struct KeyframeReport {
     /// Whether the odometry's depth link ([`stride_frontend::DepthLink`]) joined the map's
     /// constraints.
     pub depth_edge: bool,
+    /// Whether a revisit link ([`crate::RevisitConfig`]) tied the keyframe to an old one.
+    pub revisit_edge: bool,
     /// Observations removed as outliers after optimizing.
     pub outliers: usize,
     /// Points and keyframes culled.
@@ -112,10 +117,12 @@ pub struct Backend {
     /// Keyframes' bags of words for loop candidates by appearance (empty when loop closure
     /// or its appearance candidates are off).
     pub(crate) places: crate::loop_closure::Places,
+    /// Keyframes' depth images for the revisit links.
+    pub(crate) revisits: crate::revisit::Revisits,
 }
 
 /// Whether an information matrix can weigh an edge: finite and positive definite.
-fn usable_information(info: &Matrix6<f64>) -> bool {
+pub(crate) fn usable_information(info: &Matrix6<f64>) -> bool {
     info.iter().all(|v| v.is_finite()) && info.cholesky().is_some()
 }
 
@@ -188,13 +195,14 @@ impl Backend {
         let places = crate::loop_closure::Places::new(&config.loop_closure)?;
         Ok(Self {
             config,
-            camera,
             map: Map::new(),
             first: None,
             newest: None,
             pose_edges: Vec::new(),
             tracks: HashMap::new(),
             places,
+            revisits: crate::revisit::Revisits::new(&camera),
+            camera,
         })
     }
 
@@ -302,6 +310,7 @@ impl Backend {
             new_points: 0,
             odometry_edge: false,
             depth_edge: false,
+            revisit_edge: false,
             outliers: 0,
             culled_points: 0,
             culled_keyframes: 0,
@@ -333,6 +342,7 @@ impl Backend {
         if self.config.mode == BackendMode::PoseGraph {
             self.measure_pose_edges(id);
         }
+        report.revisit_edge = self.add_revisit_edge(id, input.depth_m.as_ref());
         // 5. Optimize the local window, drop outliers, cull.
         let window = local_window(&self.map, id, &self.config);
         let every = self.config.optimize_every_keyframes.max(1) as u64;

@@ -31,7 +31,7 @@ pub(crate) struct Run {
     pub(crate) reobservations: usize,
 }
 
-fn descriptor(point: usize, rng: &mut SplitMix64) -> [u8; 32] {
+pub(crate) fn descriptor(point: usize, rng: &mut SplitMix64) -> [u8; 32] {
     let mut d = [0u8; 32];
     let mut s = SplitMix64::new(point as u64 * 7919 + 1);
     for b in &mut d {
@@ -139,6 +139,7 @@ pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: 
                 odometry: odometry_link,
                 depth: None,
             },
+            depth_m: None,
         });
     }
     Run {

@@ -3,6 +3,7 @@
 use crate::error::BackendError;
 use crate::loop_closure::LoopParams;
 use crate::matching::MatchParams;
+use crate::revisit::RevisitConfig;
 use stride_core::uncertainty::PrimeSenseModel;
 
 /// What the back end optimizes.
@@ -81,6 +82,8 @@ pub struct BackendConfig {
     pub matching: MatchParams,
     /// Loop closure (bundle-adjustment mode only).
     pub loop_closure: LoopParams,
+    /// Revisit links: new keyframes tied to old ones near them by their depth.
+    pub revisit: RevisitConfig,
     /// A keyframe is redundant (culled) when this fraction of its points is seen by at
     /// least `redundant_observers` other keyframes.
     pub redundant_fraction: f64,
@@ -121,6 +124,7 @@ impl Default for BackendConfig {
             nearby_angle_deg: 45.0,
             matching: MatchParams::default(),
             loop_closure: LoopParams::default(),
+            revisit: RevisitConfig::default(),
             redundant_fraction: 0.9,
             redundant_observers: 3,
             point_grace_keyframes: 3,
@@ -228,6 +232,20 @@ impl BackendConfig {
                 "loop_closure",
                 format!("{l:?}"),
                 "search_radius_m > 0, candidates >= 1, min_inliers >= 6, appearance_candidates <= 100",
+            );
+        }
+        let r = &self.revisit;
+        if !(r.max_distance_m > 0.0
+            && r.max_distance_m.is_finite()
+            && r.max_rotation_deg > 0.0
+            && r.max_rotation_deg <= 180.0
+            && r.min_paired_fraction > 0.0
+            && r.min_paired_fraction <= 1.0)
+        {
+            return bad(
+                "revisit",
+                format!("{r:?}"),
+                "max_distance_m > 0, 0 < max_rotation_deg <= 180, 0 < min_paired_fraction <= 1",
             );
         }
         Ok(())

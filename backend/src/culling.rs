@@ -130,6 +130,7 @@ impl Backend {
         }
         self.pose_edges.retain(|e| e.from != k && e.to != k);
         self.places.forget(k);
+        self.revisits.remove(k);
         true
     }
 }

@@ -16,6 +16,8 @@
 //! * [`BackendThread`] ([`thread`]): the same in its own thread, over channels.
 //! * [`loop_closure`]: a keyframe that sees a place mapped long before is matched to it,
 //!   verified, and the loop's drift corrected (pose graph, then point fusion and BA).
+//! * [`revisit`]: a new keyframe's depth aligned with an old keyframe's near it, the
+//!   relative pose kept as an edge, so that passes over the same place are tied.
 //! * [`SavedMap`] ([`map_file`]): a map saved to a file, read back and checked, for a later
 //!   run to localize in and extend.
 //!
@@ -36,6 +38,7 @@ pub mod map;
 pub mod map_file;
 pub mod matching;
 mod pose_graph;
+pub mod revisit;
 pub mod se3;
 pub mod thread;
 mod window;
@@ -45,4 +48,5 @@ pub use config::{BackendConfig, BackendMode};
 pub use error::BackendError;
 pub use loop_closure::{LoopParams, LoopReport};
 pub use map_file::{MapFileError, SavedMap};
+pub use revisit::RevisitConfig;
 pub use thread::{BackendThread, Finished};

@@ -200,6 +200,7 @@ impl Slam {
                 t_s: r.t_s,
                 world_from_camera: r.world_from_camera,
                 info,
+                depth_m: Some(frame.depth_m.clone()),
             })?;
         }
         let record = FrameRecord {
