@@ -50,6 +50,12 @@ impl Default for RevisitConfig {
     }
 }
 
+/// Largest correction of the new keyframe's pose relative to the old one that a link may
+/// make (m, degrees): the reach of the alignment's coarsest pairing (10 cm).
+const MAX_CORRECTION_M: f64 = 0.1;
+/// See [`MAX_CORRECTION_M`].
+const MAX_CORRECTION_DEG: f64 = 10.0;
+
 /// The keyframes' depth images at half resolution, with the camera that goes with them.
 pub(crate) struct Revisits {
     camera: PinholeCamera,
@@ -97,6 +103,25 @@ fn half_resolution(depth_m: &DepthImage, edge_rel: f32) -> DepthImage {
     }
     // The size is w x h by construction.
     DepthImage::from_vec(w, h, out).unwrap_or_else(|_| DepthImage::filled(w, h, 0.0))
+}
+
+/// Whether the alignment moved the new keyframe relative to the old one (from `start` to
+/// `aligned`, both `old_from_new`) by no more than the alignment can reach; a larger
+/// correction is the ICP settling on a look-alike surface (steps, a corridor), not a
+/// revisit. The reason when not.
+fn within_reach(start: &Isometry3<f64>, aligned: &Isometry3<f64>) -> Result<(), String> {
+    let moved = start.inverse() * aligned;
+    let (m, deg) = (
+        moved.translation.vector.norm(),
+        moved.rotation.angle().to_degrees(),
+    );
+    if m > MAX_CORRECTION_M || deg > MAX_CORRECTION_DEG {
+        Err(format!(
+            "it would move the keyframe {m:.3} m and {deg:.1} degrees"
+        ))
+    } else {
+        Ok(())
+    }
 }
 
 /// Rotation angle (degrees) between two camera orientations.
@@ -157,7 +182,10 @@ impl Backend {
                     &self.revisits.camera,
                     &params,
                 );
-                match result {
+                let checked = result
+                    .map_err(|e| e.to_string())
+                    .and_then(|a| within_reach(&old_from_new, &a.world_from_cur).map(|()| a));
+                match checked {
                     Ok(a) => {
                         let information = tangent_information(&a.world_from_cur, &a.information);
                         if crate::backend::usable_information(&information) {

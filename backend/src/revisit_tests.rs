@@ -112,3 +112,15 @@ fn the_way_back_is_tied_to_the_way_out_by_depth() {
         odometry * 1e3
     );
 }
+
+#[test]
+fn a_link_may_not_move_a_keyframe_beyond_the_alignments_reach() {
+    let start = Isometry3::translation(0.2, 0.0, 0.0);
+    let near = Isometry3::translation(0.25, 0.03, 0.0);
+    assert!(within_reach(&start, &near).is_ok());
+    let far = Isometry3::translation(0.2, 0.0, 0.15);
+    let err = within_reach(&start, &far).unwrap_err();
+    assert!(err.contains("0.150 m"), "{err}");
+    let turned = start * Isometry3::rotation(Vector3::y() * 0.2);
+    assert!(within_reach(&start, &turned).is_err(), "11.5 degrees");
+}

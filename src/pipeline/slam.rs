@@ -200,7 +200,7 @@ impl Slam {
                 t_s: r.t_s,
                 world_from_camera: r.world_from_camera,
                 info,
-                depth_m: Some(frame.depth_m.clone()),
+                depth_m: c.config.revisit.enabled.then(|| frame.depth_m.clone()),
             })?;
         }
         let record = FrameRecord {
