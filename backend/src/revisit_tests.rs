@@ -124,3 +124,11 @@ fn a_link_may_not_move_a_keyframe_beyond_the_alignments_reach() {
     let turned = start * Isometry3::rotation(Vector3::y() * 0.2);
     assert!(within_reach(&start, &turned).is_err(), "11.5 degrees");
 }
+
+#[test]
+fn kept_depth_rounds_to_quarter_millimetres_and_drops_what_it_cannot_hold() {
+    let d = DepthImage::from_vec(4, 1, vec![1.23456, 0.0, 20.0, f32::NAN]).unwrap();
+    let k = keep(&d);
+    assert_eq!(k.as_slice(), &[4938, 0, 0, 0]);
+    assert!((f32::from(k.as_slice()[0]) / KEPT_UNITS_PER_M - 1.23456).abs() < 0.000125);
+}
