@@ -25,7 +25,10 @@ use stride_frontend::depth_align::{align, DepthAlignParams, DepthView};
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RevisitConfig {
-    /// Whether new keyframes are aligned with old keyframes near them.
+    /// Whether new keyframes are aligned with old keyframes near them. Off by default: on
+    /// teddy's pingpong they help over 1,000 frames (ATE 8.35 / 7.51 / 7.23 -> 7.72 / 5.97 /
+    /// 5.59 mm) and 5,000 (10.16 -> 9.82 mm) but hurt over 10,000 (12.22 -> 14.98 mm),
+    /// for a reason not found yet (docs/slam.md).
     pub enabled: bool,
     /// Farthest an old keyframe's camera may stand from the new one's (m).
     pub max_distance_m: f64,
@@ -41,7 +44,7 @@ pub struct RevisitConfig {
 impl Default for RevisitConfig {
     fn default() -> Self {
         Self {
-            enabled: true,
+            enabled: false,
             max_distance_m: 0.3,
             max_rotation_deg: 45.0,
             min_keyframe_gap: 20,
@@ -182,8 +185,11 @@ impl Backend {
         if let Some((old, world_from_old, _)) = nearest {
             if let Some(old_depth) = self.revisits.depth.get(&old) {
                 let old_depth = old_depth.map(|q| f32::from(q) / KEPT_UNITS_PER_M);
+                // The odometry's default depth range and edge test; the back end's own
+                // depth model.
                 let params = DepthAlignParams {
                     min_paired_fraction: cfg.min_paired_fraction,
+                    noise: self.config.depth_model,
                     ..DepthAlignParams::from_config(&vo)
                 };
                 // Both in the old keyframe's frame: the edge is relative.
