@@ -107,8 +107,9 @@ pub struct Backend {
     pub(crate) map: Map,
     pub(crate) first: Option<KeyframeId>,
     pub(crate) newest: Option<KeyframeId>,
-    /// Relative motions measured between keyframes: the odometry's depth links, and in
-    /// pose-graph mode the motions from shared points.
+    /// Relative motions measured between keyframes: the odometry's depth links, the
+    /// revisit links ([`crate::revisit`]), and in pose-graph mode the motions from shared
+    /// points.
     pub(crate) pose_edges: Vec<KeyframeEdge>,
     /// The map point of each track the latest keyframe saw (every track the odometry still
     /// follows was in it), kept apart from the map so that the latest keyframe can be

@@ -325,6 +325,13 @@ fn invalid_configurations_are_refused() {
     };
     let err = Backend::new(camera(), bad).err().unwrap().to_string();
     assert!(err.contains("final_max_keyframes"), "{err}");
+    let mut bad = BackendConfig::default();
+    bad.revisit.min_paired_fraction = 0.0;
+    let err = Backend::new(camera(), bad).err().unwrap().to_string();
+    assert!(
+        err.contains("revisit") && err.contains("min_paired_fraction"),
+        "{err}"
+    );
 }
 
 #[test]
