@@ -356,7 +356,7 @@ impl Backend {
         report.optimize_s = optimize_start.elapsed().as_secs_f64();
         report.solve = solve_report;
         report.outliers = outliers;
-        report.loop_closure = self.close_loop(id)?;
+        report.loop_closure = self.close_loop(id, report.revisit_edge)?;
         self.tracks = self.map.keyframe(id).map_or_else(HashMap::new, |kf| {
             kf.features
                 .iter()

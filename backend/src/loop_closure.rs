@@ -152,17 +152,24 @@ impl Backend {
         database.add(id, v.transform(&descriptors));
     }
 
-    /// Looks for a loop at keyframe `id` and closes it (see the module documentation).
-    /// Returns what was done, or `None` when there was no loop to close.
+    /// Looks for a loop at keyframe `id` and closes it (see the module documentation),
+    /// unless a revisit link `tied` it to an old keyframe already. Returns what was done,
+    /// or `None` when there was no loop to close.
     pub(crate) fn close_loop(
         &mut self,
         id: KeyframeId,
+        tied: bool,
     ) -> Result<Option<LoopReport>, BackendError> {
         let params = self.config.loop_closure.clone();
         if !params.enabled || self.config.mode != BackendMode::BundleAdjustment {
             return Ok(None);
         }
         self.index_place(id);
+        if tied {
+            // A revisit link tied the keyframe to an old one already: the loop is closed,
+            // and a pose graph without that link would pull against it.
+            return Ok(None);
+        }
         let Some(verified) = self.find_loop(id, &params) else {
             return Ok(None);
         };
