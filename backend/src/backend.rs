@@ -123,7 +123,7 @@ pub struct Backend {
 }
 
 /// Whether an information matrix can weigh an edge: finite and positive definite.
-pub(crate) fn usable_information(info: &Matrix6<f64>) -> bool {
+fn usable_information(info: &Matrix6<f64>) -> bool {
     info.iter().all(|v| v.is_finite()) && info.cholesky().is_some()
 }
 
@@ -156,13 +156,33 @@ impl Backend {
         };
         // A right perturbation of the keyframe's pose does not depend on the frame the
         // link starts from: the link's tangent information holds after composing.
-        let information = tangent_information(&l.previous_from_this, &l.information);
+        self.add_measured_edge(
+            previous,
+            id,
+            live_from_previous * l.previous_from_this,
+            &l.previous_from_this,
+            &l.information,
+        )
+    }
+
+    /// Adds the pose-pose edge `from -> to` with relative pose `from_from_to`, measured
+    /// (by a depth alignment) as `measured` with information `info_left` (left
+    /// perturbation, as the alignment gives it); whether that information was usable.
+    pub(crate) fn add_measured_edge(
+        &mut self,
+        from: KeyframeId,
+        to: KeyframeId,
+        from_from_to: Isometry3<f64>,
+        measured: &Isometry3<f64>,
+        info_left: &Matrix6<f64>,
+    ) -> bool {
+        let information = tangent_information(measured, info_left);
         let usable = usable_information(&information);
         if usable {
             self.pose_edges.push(KeyframeEdge {
-                from: previous,
-                to: id,
-                from_from_to: live_from_previous * l.previous_from_this,
+                from,
+                to,
+                from_from_to,
                 information,
             });
         }

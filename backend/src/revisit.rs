@@ -12,13 +12,13 @@
 //! Memory: each keyframe keeps its depth at half resolution in quarter millimetres (2 bytes
 //! per pixel: 0.15 MB at VGA), dropped when the keyframe is culled.
 
-use crate::backend::{tangent_information, Backend};
+use crate::backend::Backend;
 use crate::map::KeyframeId;
-use crate::window::KeyframeEdge;
 use nalgebra::Isometry3;
 use std::collections::BTreeMap;
 use stride_core::camera::PinholeCamera;
 use stride_core::image::{DepthImage, Image};
+use stride_core::pose::rotation_angle_rad;
 use stride_frontend::depth_align::{align, DepthAlignParams, DepthView};
 
 /// The revisit links' settings (`backend.revisit` in the configuration).
@@ -132,7 +132,7 @@ fn within_reach(start: &Isometry3<f64>, aligned: &Isometry3<f64>) -> Result<(), 
     let moved = start.inverse() * aligned;
     let (m, deg) = (
         moved.translation.vector.norm(),
-        moved.rotation.angle().to_degrees(),
+        rotation_angle_rad(&moved.rotation).to_degrees(),
     );
     if m > MAX_CORRECTION_M || deg > MAX_CORRECTION_DEG {
         Err(format!(
@@ -141,11 +141,6 @@ fn within_reach(start: &Isometry3<f64>, aligned: &Isometry3<f64>) -> Result<(), 
     } else {
         Ok(())
     }
-}
-
-/// Rotation angle (degrees) between two camera orientations.
-fn rotation_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
-    a.rotation.angle_to(&b.rotation).to_degrees()
 }
 
 impl Backend {
@@ -177,7 +172,9 @@ impl Backend {
                 (k, p, d)
             })
             .filter(|(_, p, d)| {
-                *d <= cfg.max_distance_m && rotation_deg(p, &world_from_new) <= cfg.max_rotation_deg
+                let turn = p.rotation.inverse() * world_from_new.rotation;
+                *d <= cfg.max_distance_m
+                    && rotation_angle_rad(&turn).to_degrees() <= cfg.max_rotation_deg
             })
             .min_by(|a, b| a.2.total_cmp(&b.2).then(a.0.cmp(&b.0)));
         let mut added = false;
@@ -210,16 +207,13 @@ impl Backend {
                     .and_then(|a| within_reach(&old_from_new, &a.world_from_cur).map(|()| a));
                 match checked {
                     Ok(a) => {
-                        let information = tangent_information(&a.world_from_cur, &a.information);
-                        if crate::backend::usable_information(&information) {
-                            self.pose_edges.push(KeyframeEdge {
-                                from: old,
-                                to: id,
-                                from_from_to: a.world_from_cur,
-                                information,
-                            });
-                            added = true;
-                        }
+                        added = self.add_measured_edge(
+                            old,
+                            id,
+                            a.world_from_cur,
+                            &a.world_from_cur,
+                            &a.information,
+                        );
                     }
                     Err(e) => tracing::debug!("keyframe {id}: no revisit link to {old}: {e}"),
                 }
