@@ -136,6 +136,7 @@ pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: 
             info: KeyframeInfo {
                 id: i as u64,
                 features,
+                place_features: Vec::new(),
                 odometry: odometry_link,
                 depth: None,
             },

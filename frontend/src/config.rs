@@ -115,6 +115,9 @@ pub struct VoConfig {
     pub max_gyroscope_disagreement_deg: f64,
     /// Compute ORB descriptors of keyframe keypoints (for map matching by a back end).
     pub orb_descriptors: bool,
+    /// Detect multi-scale ORB features in every keyframe for a back end's loop closure
+    /// ([`crate::result::KeyframeInfo::place_features`]; about 2 ms per keyframe).
+    pub place_features: bool,
     /// Wide-baseline recovery ([`crate::recovery`]): when Lucas-Kanade loses a frame, or
     /// keeps fewer than `keyframe_min_inliers` inliers, the frame's ORB features are matched
     /// against those of this many recent keyframes and its pose is estimated from the
@@ -467,6 +470,7 @@ impl Default for VoConfig {
             max_step_rotation_deg: 45.0,
             max_gyroscope_disagreement_deg: 1.0,
             orb_descriptors: true,
+            place_features: true,
             recovery_keyframes: Some(5),
             recovery_min_inliers: 20,
             relocalization_keyframes: Some(2000),

@@ -7,7 +7,8 @@ use crate::error::FrontendError;
 use crate::features::Detector;
 use crate::klt::Pyramid;
 use crate::points::{measure, Measurement};
-use crate::result::{KeyframeFeature, KeyframeInfo, OdometryLink, TrackingStatus};
+use crate::recovery::orb_points;
+use crate::result::{KeyframeFeature, KeyframeInfo, OdometryLink, PlaceFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
 use nalgebra::{Isometry3, Matrix3, Point2};
 use opencv::core::Point2f;
@@ -189,6 +190,29 @@ impl VisualOdometry {
         };
         // Before this keyframe joins the recent ones: the link is to the one before it.
         let depth = odometry.as_ref().and_then(|o| self.depth_link(frame, o));
+        // Measured at the frame's time, as the tracks are (recovery computes its own, for
+        // a still camera, when it needs them).
+        let place_features = if self.config.place_features {
+            let orb = &mut self.recent.place_orb;
+            let points = orb_points(
+                orb,
+                &pyr.gray,
+                &frame.depth_m,
+                &self.camera,
+                &self.shutter,
+                &self.config,
+            )?;
+            points
+                .iter()
+                .map(|o| PlaceFeature {
+                    px: Point2::new(o.px.x, o.px.y),
+                    descriptor: o.descriptor,
+                    measurement: o.p_camera,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
         if let Some(keep) = self.config.recovery_keyframes {
             self.recent
                 .push(id, pyr, &frame.depth_m, *world_from_cur, keep);
@@ -212,6 +236,7 @@ impl VisualOdometry {
         Ok(KeyframeInfo {
             id,
             features,
+            place_features,
             odometry,
             depth,
         })

@@ -72,6 +72,17 @@ pub struct KeyframeFeature {
     pub descriptor: Option<OrbDescriptor>,
 }
 
+/// An ORB feature detected in a keyframe, with depth ([`KeyframeInfo::place_features`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlaceFeature {
+    /// Pixel position (distorted image coordinates).
+    pub px: Point2<f32>,
+    /// ORB descriptor.
+    pub descriptor: OrbDescriptor,
+    /// The point in the keyframe's camera frame and its covariance (m, m^2).
+    pub measurement: Measurement,
+}
+
 /// The link of a keyframe to the one before it, as the odometry measured it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OdometryLink {
@@ -109,6 +120,12 @@ pub struct KeyframeInfo {
     pub id: u64,
     /// Every tracked keypoint of the keyframe (old tracks and new detections).
     pub features: Vec<KeyframeFeature>,
+    /// Multi-scale ORB features detected in the keyframe and measured with its depth
+    /// ([`crate::VoConfig::place_features`]; empty when off): unlike the tracked keypoints,
+    /// whose positions drift by a pixel or two from the corner, they are found again where
+    /// a later pass detects them, so they are what keyframes are matched by when nothing
+    /// else ties them (loops, pieces of the map after a lost frame).
+    pub place_features: Vec<PlaceFeature>,
     /// The link to the previous keyframe; `None` for the first.
     pub odometry: Option<OdometryLink>,
     /// The same link measured by depth alignment, for a keyframe whose pose rests on few

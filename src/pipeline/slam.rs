@@ -60,9 +60,14 @@ impl Slam {
         backend: Option<(BackendConfig, Schedule)>,
         saved: Option<SavedMap>,
     ) -> Result<Self, PipelineError> {
+        // Place features serve only the back end's loop closure.
+        let loops = backend.as_ref().is_some_and(|(b, _)| {
+            b.loop_closure.enabled && b.mode == stride_backend::BackendMode::BundleAdjustment
+        });
         let config = VoConfig {
             rolling_shutter_s: camera.rolling_shutter_s,
             exposure_s: camera.exposure_s,
+            place_features: config.place_features && loops,
             ..config
         };
         let camera = camera.camera;
