@@ -120,6 +120,14 @@ pub struct Backend {
     pub(crate) places: crate::loop_closure::Places,
     /// Keyframes' depth images for the revisit links.
     pub(crate) revisits: crate::revisit::Revisits,
+    /// The first keyframe placed by a prediction (the odometry lost the frame) since the map
+    /// was last whole: the keyframes from it on sit where a guess put them until loop
+    /// closure ties one of them to an older keyframe (then `None`).
+    pub(crate) unjoined_from: Option<KeyframeId>,
+    /// Every keyframe placed by a prediction: each starts a piece of the map.
+    pub(crate) piece_starts: std::collections::BTreeSet<KeyframeId>,
+    /// The newest keyframe tied to an old place by a revisit link or a loop.
+    pub(crate) last_tied: Option<KeyframeId>,
 }
 
 /// Whether an information matrix can weigh an edge: finite and positive definite.
@@ -223,6 +231,9 @@ impl Backend {
             tracks: HashMap::new(),
             places,
             revisits: crate::revisit::Revisits::new(&camera),
+            unjoined_from: None,
+            piece_starts: std::collections::BTreeSet::new(),
+            last_tied: None,
             camera,
         })
     }
@@ -283,6 +294,16 @@ impl Backend {
                 active: false,
             })
         });
+        // A link without information is a predicted pose: a new piece of the map starts.
+        if input.info.odometry.as_ref().is_some_and(|l| {
+            !usable_information(&tangent_information(
+                &input.world_from_camera,
+                &l.information,
+            ))
+        }) {
+            self.unjoined_from.get_or_insert(id);
+            self.piece_starts.insert(id);
+        }
         let predicted = odometry
             .as_ref()
             .and_then(|e| {
@@ -376,7 +397,20 @@ impl Backend {
         report.optimize_s = optimize_start.elapsed().as_secs_f64();
         report.solve = solve_report;
         report.outliers = outliers;
-        report.loop_closure = self.close_loop(id, report.revisit_edge)?;
+        self.places.keep(id, &input.info.place_features);
+        // A keyframe whose local window holds one tied to an old place (by a revisit link or
+        // a loop) is tied to it through bundle adjustment: no loop to close there.
+        if report.revisit_edge {
+            self.last_tied = Some(id);
+        }
+        let reach = self.config.window_keyframes as u64;
+        let tied = self
+            .last_tied
+            .is_some_and(|t| id.saturating_sub(t) <= reach);
+        report.loop_closure = self.close_loop(id, tied)?;
+        if report.loop_closure.is_some() {
+            self.last_tied = Some(id);
+        }
         self.tracks = self.map.keyframe(id).map_or_else(HashMap::new, |kf| {
             kf.features
                 .iter()

@@ -226,12 +226,13 @@ impl BackendConfig {
         if !(l.search_radius_m > 0.0
             && l.candidates >= 1
             && l.min_inliers >= 6
-            && l.appearance_candidates <= 100)
+            && l.appearance_candidates <= 100
+            && (1..=100).contains(&l.matched_candidates))
         {
             return bad(
                 "loop_closure",
                 format!("{l:?}"),
-                "search_radius_m > 0, candidates >= 1, min_inliers >= 6, appearance_candidates <= 100",
+                "search_radius_m > 0, candidates >= 1, min_inliers >= 6, appearance_candidates <= 100, matched_candidates 1 to 100",
             );
         }
         let r = &self.revisit;

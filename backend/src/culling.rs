@@ -106,17 +106,28 @@ impl Backend {
 
     /// Culls keyframe `k`, keeping its pose relative to its neighbour in time, not to the
     /// keyframe sharing the most points (which may come from another pass over the place,
-    /// with drift of its own that later corrections move differently). False when it has
-    /// no neighbour or could not be culled.
+    /// with drift of its own that later corrections move differently): the previous one,
+    /// or the next when a piece of the map placed by a guess starts between the previous
+    /// one and `k` (a pose kept relative to the other piece would miss the piece's
+    /// correction when the two join). False when it has no such neighbour or could not be
+    /// culled.
     fn cull_into_neighbour(&mut self, k: KeyframeId) -> bool {
-        let Some(parent) = self
-            .map
-            .keyframes()
+        let starts_between =
+            |a: KeyframeId, b: KeyframeId| self.piece_starts.range(a + 1..=b).next().is_some();
+        let keyframes = self.map.keyframes();
+        let previous = keyframes
             .range(..k)
             .next_back()
-            .or_else(|| self.map.keyframes().range(k + 1..).next())
             .map(|(&p, _)| p)
-        else {
+            .filter(|&p| !starts_between(p, k));
+        let next = || {
+            keyframes
+                .range(k + 1..)
+                .next()
+                .map(|(&n, _)| n)
+                .filter(|&n| !starts_between(k, n))
+        };
+        let Some(parent) = previous.or_else(next) else {
             return false;
         };
         self.remove_keyframe(k, parent)

@@ -155,3 +155,46 @@ fn appearance_finds_loops_whose_drift_exceeds_the_search_radius() {
     }
     assert!(r_seeing < 0.5 * r_blind, "{r_seeing} against {r_blind}");
 }
+
+#[test]
+fn a_piece_placed_by_a_guess_joins_the_map_at_once() {
+    // The odometry loses keyframe 20 of the way out: its pose is a guess 25 cm off (a link
+    // without information), every track starts afresh, and the keyframes after it carry the
+    // error. The keyframes it should join are recent, far fewer than `min_age_keyframes`
+    // (here 40) before it, which a loop between places mapped long apart needs.
+    let (n, lost) = (60, 20);
+    let params = |enabled| LoopParams {
+        enabled,
+        min_age_keyframes: 40,
+        ..LoopParams::default()
+    };
+    let mut run = synthetic_run(n, 0.0005, 5);
+    let offset = Isometry3::translation(0.25, 0.0, -0.1);
+    for input in run.inputs.iter_mut().skip(lost) {
+        input.world_from_camera = offset * input.world_from_camera;
+        for f in &mut input.info.features {
+            f.track_id += 1_000_000;
+        }
+    }
+    if let Some(link) = run.inputs[lost].info.odometry.as_mut() {
+        link.previous_from_this = run.odometry[lost - 1].inverse() * offset * run.odometry[lost];
+        link.information = nalgebra::Matrix6::zeros();
+        link.inliers = 0;
+    }
+    let (joined, closed) = run_with(&run, params(true));
+    let (apart, none) = run_with(&run, params(false));
+    let piece_error = |est: &[Isometry3<f64>]| rms(&est[lost..], &run.truth[lost..]);
+    eprintln!(
+        "lost piece: loops {closed:?}; its error {:.1} mm joined, {:.1} mm apart",
+        piece_error(&joined) * 1e3,
+        piece_error(&apart) * 1e3
+    );
+    assert!(none.is_empty());
+    let (k, m) = *closed.first().expect("the piece never joined");
+    assert!(
+        k < lost as u64 + 3 && m < lost as u64,
+        "joined at keyframe {k} with {m}"
+    );
+    assert!(piece_error(&apart) > 0.2, "{}", piece_error(&apart));
+    assert!(piece_error(&joined) < 0.02, "{}", piece_error(&joined));
+}

@@ -274,6 +274,9 @@ impl RunOutput {
                 let Some(from_a) = through(ka, f) else {
                     return f.live_world_from_camera;
                 };
+                // A lost next keyframe was placed by a guess: nothing ties the frames
+                // before it to it.
+                let kb = kb.filter(|kb| kb.status != FrameStatus::Lost);
                 let Some((kb, from_b)) = kb.and_then(|kb| Some((kb, through(kb, f)?))) else {
                     return from_a;
                 };
