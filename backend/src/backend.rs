@@ -398,8 +398,8 @@ impl Backend {
         report.solve = solve_report;
         report.outliers = outliers;
         self.places.keep(id, &input.info.place_features);
-        // A keyframe whose local window holds one tied to an old place (by a revisit link or
-        // a loop) is tied to it through bundle adjustment: no loop to close there.
+        // A keyframe within `window_keyframes` of one tied to an old place (by a revisit link
+        // or a loop) is tied to it through bundle adjustment: no loop to close there.
         if report.revisit_edge {
             self.last_tied = Some(id);
         }

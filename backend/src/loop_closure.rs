@@ -232,8 +232,8 @@ impl Backend {
     }
 
     /// Looks for a loop at keyframe `id` and closes it (see the module documentation),
-    /// unless it is `tied` to an old place already (a revisit link or a loop in its local
-    /// window) and not in a piece placed by a guess. Returns what was done,
+    /// unless it is `tied` to an old place already (a revisit link or a loop within the last
+    /// `window_keyframes` keyframes) and not in a piece placed by a guess. Returns what was done,
     /// or `None` when there was no loop to close.
     pub(crate) fn close_loop(
         &mut self,
