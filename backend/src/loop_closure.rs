@@ -217,16 +217,19 @@ impl Backend {
     /// Adds keyframe `id`'s bag of words (of its place features) to the place database
     /// (culling removes it again); nothing when appearance search is off.
     pub(crate) fn index_place(&mut self, id: KeyframeId) {
-        if self.places.vocabulary.is_none() {
-            return;
-        }
-        let descriptors: Vec<[u8; 32]> = self.matchable_features(id).iter().map(|p| p.0).collect();
+        let features = self.matchable_features(id);
+        self.index_features(id, &features);
+    }
+
+    /// [`Backend::index_place`] with keyframe `id`'s features already at hand.
+    fn index_features(&mut self, id: KeyframeId, features: &[([u8; 32], Measurement)]) {
         let Places {
             vocabulary,
             database,
             ..
         } = &mut self.places;
         if let Some(v) = vocabulary {
+            let descriptors: Vec<[u8; 32]> = features.iter().map(|f| f.0).collect();
             database.add(id, v.transform(&descriptors));
         }
     }
@@ -244,14 +247,15 @@ impl Backend {
         if !params.enabled || self.config.mode != BackendMode::BundleAdjustment {
             return Ok(None);
         }
-        self.index_place(id);
+        let query = self.matchable_features(id);
+        self.index_features(id, &query);
         if tied && self.unjoined_from.is_none() {
             // Tied to an old place already: the loop is closed, and a pose graph would only
             // pull against what bundle adjustment holds (measured on teddy's 5,000-frame
             // pingpong: 142 such loops, ATE 8.7 against 6.8 mm).
             return Ok(None);
         }
-        let Some(verified) = self.find_loop(id, &params) else {
+        let Some(verified) = self.find_loop(id, &query, &params) else {
             return Ok(None);
         };
         let before = self.map.pose_of(id).unwrap_or(verified.world_from_new);
@@ -311,7 +315,13 @@ impl Backend {
     }
 
     /// Steps 1-3: the old keyframe keyframe `id` sees again, verified.
-    fn find_loop(&self, id: KeyframeId, params: &crate::LoopParams) -> Option<Verified> {
+    /// `query`: keyframe `id`'s features ([`Backend::matchable_features`]).
+    fn find_loop(
+        &self,
+        id: KeyframeId,
+        query: &[([u8; 32], Measurement)],
+        params: &crate::LoopParams,
+    ) -> Option<Verified> {
         let kf = self.map.keyframe(id)?;
         // Old keyframes already tied to this one (by tracks or the local map's matching)
         // are no loop to close.
@@ -355,7 +365,6 @@ impl Backend {
                 .collect();
         }
         // Keyframe against keyframe, by their place features.
-        let query = self.matchable_features(id);
         let query_desc: Vec<[u8; 32]> = query.iter().map(|q| q.0).collect();
         let m = &self.config.matching;
         let mut best: Option<(KeyframeId, Vec<(Measurement, Measurement)>)> = None;

@@ -138,28 +138,21 @@ pub(crate) struct RecentKeyframes {
 impl RecentKeyframes {
     /// None yet.
     pub(crate) fn new() -> Result<Self, FrontendError> {
-        let orb = ORB::create(
-            ORB_FEATURES,
-            1.2,
-            8,
-            31,
-            0,
-            2,
-            ORB_ScoreType::HARRIS_SCORE,
-            31,
-            ORB_FAST_THRESHOLD,
-        )?;
-        let place_orb = ORB::create(
-            ORB_FEATURES,
-            1.2,
-            PLACE_LEVELS,
-            31,
-            0,
-            2,
-            ORB_ScoreType::HARRIS_SCORE,
-            31,
-            ORB_FAST_THRESHOLD,
-        )?;
+        // The same extractor but for its pyramid's depth.
+        let extractor = |levels| {
+            ORB::create(
+                ORB_FEATURES,
+                1.2,
+                levels,
+                31,
+                0,
+                2,
+                ORB_ScoreType::HARRIS_SCORE,
+                31,
+                ORB_FAST_THRESHOLD,
+            )
+        };
+        let (orb, place_orb) = (extractor(8)?, extractor(PLACE_LEVELS)?);
         Ok(Self {
             keyframes: VecDeque::new(),
             orb,
