@@ -191,18 +191,26 @@ impl VisualOdometry {
         // Before this keyframe joins the recent ones: the link is to the one before it.
         let depth = odometry.as_ref().and_then(|o| self.depth_link(frame, o));
         // Measured at the frame's time, as the tracks are (recovery computes its own, for
-        // a still camera, when it needs them).
-        let place_features = if self.config.place_features {
-            let orb = &mut self.recent.place_orb;
-            let points = orb_points(
-                orb,
+        // a still camera, when it needs them). Relocalization remembers a keyframe by them
+        // too, so they are detected for such a keyframe even without a back end.
+        let remembered = self
+            .config
+            .relocalization_keyframes
+            .filter(|_| self.places.wants(world_from_cur));
+        let place_points = if self.config.place_features || remembered.is_some() {
+            orb_points(
+                &mut self.recent.place_orb,
                 &pyr.gray,
                 &frame.depth_m,
                 &self.camera,
                 &self.shutter,
                 &self.config,
-            )?;
-            points
+            )?
+        } else {
+            Vec::new()
+        };
+        let place_features = if self.config.place_features {
+            place_points
                 .iter()
                 .map(|o| PlaceFeature {
                     px: Point2::new(o.px.x, o.px.y),
@@ -213,6 +221,9 @@ impl VisualOdometry {
         } else {
             Vec::new()
         };
+        if let Some(cap) = remembered {
+            self.places.remember(id, *world_from_cur, place_points, cap);
+        }
         if let Some(keep) = self.config.recovery_keyframes {
             self.recent
                 .push(id, pyr, &frame.depth_m, *world_from_cur, keep);
@@ -228,9 +239,6 @@ impl VisualOdometry {
                 descriptor: d,
             })
             .collect::<Vec<_>>();
-        if let Some(cap) = self.config.relocalization_keyframes {
-            self.places.remember(id, *world_from_cur, &features, cap);
-        }
         self.kf_tracks = tracks.len();
         self.tracks = tracks;
         Ok(KeyframeInfo {

@@ -255,6 +255,9 @@ pub(crate) struct Recovered {
     pub(crate) matches: usize,
     /// That keyframe's identifier.
     pub(crate) matched_keyframe: u64,
+    /// The frame's pose in that keyframe's camera frame (what was measured: the keyframe
+    /// was placed in the world by the odometry when it was kept, with the drift of then).
+    pub(crate) matched_from_cur: Isometry3<f64>,
 }
 
 /// The pose of a frame against one reference keyframe: the matches of `query` with the
@@ -297,8 +300,13 @@ pub(crate) fn estimate_against(
     ))
 }
 
-/// An estimate against a keyframe: the estimate, its pairs, the keyframe's identifier.
-pub(crate) type Found = (MotionEstimate, Vec<(usize, Correspondence)>, u64);
+/// An estimate, its matches, and the keyframe it was found against (identifier,
+/// `world_from_camera`).
+pub(crate) type Found = (
+    MotionEstimate,
+    Vec<(usize, Correspondence)>,
+    (u64, Isometry3<f64>),
+);
 
 /// Keeps the estimate with more inliers (the earlier one on a tie).
 pub(crate) fn keep_best(best: &mut Option<Found>, candidate: Option<Found>) {
@@ -357,9 +365,12 @@ impl VisualOdometry {
                 config.refine_iterations,
                 &mut self.rng,
             );
-            keep_best(&mut best, found.map(|(e, p)| (e, p, kf.id)));
+            keep_best(
+                &mut best,
+                found.map(|(e, p)| (e, p, (kf.id, kf.world_from_kf))),
+            );
         }
-        Ok(best.map(|(e, pairs, id)| self.recovered(&query, e, &pairs, id)))
+        Ok(best.map(|(e, pairs, matched)| self.recovered(&query, e, &pairs, matched)))
     }
 
     /// Places a lost frame by aligning its depth with the newest keyframe's
@@ -389,6 +400,7 @@ impl VisualOdometry {
             tracks: Vec::new(),
             matches: 0,
             matched_keyframe: kf.id,
+            matched_from_cur: kf.world_from_kf.inverse() * a.world_from_cur,
         })
     }
 
@@ -429,7 +441,7 @@ impl VisualOdometry {
         query: &[OrbPoint],
         e: MotionEstimate,
         pairs: &[(usize, Correspondence)],
-        matched_keyframe: u64,
+        (matched_keyframe, world_from_matched): (u64, Isometry3<f64>),
     ) -> Recovered {
         let keyframe = self.kf_count;
         let mut tracks = Vec::with_capacity(e.inlier_count);
@@ -460,6 +472,7 @@ impl VisualOdometry {
             tracks,
             matches: pairs.len(),
             matched_keyframe,
+            matched_from_cur: world_from_matched.inverse() * e.ref_from_cur,
         }
     }
 }

@@ -5,19 +5,27 @@
 //! The odometry remembers a saved map's keyframes ([`VisualOdometry::start_in_map`]) and
 //! this run's own: one keyframe whenever the camera has moved 0.15 m or turned 15 degrees
 //! since the last one kept (the recent keyframes' spacing), at most
-//! `relocalization_keyframes` of them (the oldest forgotten first; about 35 KB each: their
-//! described corners with depth). Each has
-//! a bag of words ([`crate::place`], the shipped vocabulary). A query frame's ORB features
-//! (multi-scale, plus its tracking corners described as the keyframes' are) give its own
-//! bag; the [`SHORTLIST`] keyframes with the best scores are matched by descriptor, and
-//! RANSAC runs on the [`RELOCALIZATION_CANDIDATES`] with the most matches, as for recovery
-//! but with more support required ([`MIN_INLIERS`], a third of the matches). A saved map
+//! `relocalization_keyframes` of them (the oldest forgotten first). This run's are
+//! remembered by their place features (up to 1,000 multi-scale ORB features detected in the
+//! keyframe, with depth; about 0.1 MB each): corners detected where they are, which a later
+//! view finds again, unlike the tracking's corners, described where Lucas-Kanade carried
+//! them (a frame jumping back to a place the run passed matched 43 of those at most, and
+//! 97 inliers of place features). A saved map's keyframes hold their mapped features (the
+//! tracking's corners). Each has a bag of words ([`crate::place`], the shipped vocabulary).
+//! A query frame's ORB features (multi-scale, plus, with a saved map, its tracking corners
+//! described as the map's are) give its own bag; the [`SHORTLIST`] keyframes with the best
+//! scores are matched by descriptor, and RANSAC runs on the [`RELOCALIZATION_CANDIDATES`]
+//! with the most matches, as for recovery but with more support required ([`MIN_INLIERS`],
+//! a third of the matches). A saved map
 //! small enough to fit the shortlist is thus searched exhaustively.
 //!
 //! The run's own keyframes are placed by the odometry's poses: a relocalized frame is put
 //! where the odometry had put that place, so the jump it makes is consistent with the
 //! trajectory up to the drift accumulated since, which the back end's loop closure then
-//! corrects.
+//! corrects. The keyframe made of a relocalized frame is linked to the keyframe it was
+//! found against, by the pose measured against it (not to the previous keyframe, which
+//! would state that drift as a measurement): the back end puts it where its corrected map
+//! has that place.
 
 use crate::error::FrontendError;
 use crate::features::OrbDescriptor;
@@ -28,7 +36,7 @@ use crate::recovery::{
     estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
     Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
 };
-use crate::result::{KeyframeFeature, TrackingStatus};
+use crate::result::TrackingStatus;
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
 use opencv::core::Point2f;
@@ -94,31 +102,29 @@ impl PlaceMemory {
         }
     }
 
-    /// Remembers one of this run's keyframes (its described features with depth) when it
-    /// is far enough from the last one kept, forgetting the oldest beyond `cap`.
+    /// Whether a keyframe at `world_from_kf` would be remembered: it is far enough from the
+    /// last one kept ([`SPACING_M`], [`SPACING_RAD`]), or none is kept yet.
+    pub(crate) fn wants(&self, world_from_kf: &Isometry3<f64>) -> bool {
+        self.last_own.is_none_or(|last| {
+            let step = last.inverse() * world_from_kf;
+            step.translation.vector.norm() >= SPACING_M || step.rotation.angle() >= SPACING_RAD
+        })
+    }
+
+    /// Remembers one of this run's keyframes by its ORB points with depth (its place
+    /// features: corners detected where they are, which a later view of the place finds
+    /// again far more often than the tracking's corners, described where Lucas-Kanade
+    /// carried them) when [`Self::wants`] it, forgetting the oldest beyond `cap`.
     pub(crate) fn remember(
         &mut self,
         id: u64,
         world_from_kf: Isometry3<f64>,
-        features: &[KeyframeFeature],
+        points: Vec<OrbPoint>,
         cap: usize,
     ) {
-        if let Some(last) = self.last_own {
-            let step = last.inverse() * world_from_kf;
-            if step.translation.vector.norm() < SPACING_M && step.rotation.angle() < SPACING_RAD {
-                return;
-            }
+        if !self.wants(&world_from_kf) {
+            return;
         }
-        let points = features
-            .iter()
-            .filter_map(|f| {
-                Some(OrbPoint {
-                    px: Point2f::new(f.px.x, f.px.y),
-                    descriptor: f.descriptor?,
-                    p_camera: f.measurement?,
-                })
-            })
-            .collect();
         self.insert(AnchorKeyframe {
             id,
             world_from_camera: world_from_kf,
@@ -211,9 +217,14 @@ impl VisualOdometry {
             &still,
             config,
         )?;
-        // The keyframes' features are the tracking's corners with ORB descriptors at full
-        // resolution: the same corners of this frame match them best.
-        let corners = self.detector.detect(&pyr.gray, &[], config)?;
+        // A saved map's keyframes hold their mapped features, the tracking's corners with
+        // ORB descriptors at full resolution: the same corners of this frame match them
+        // best. This run's keyframes hold place features, as the query's ORB points.
+        let corners = if self.places.saved_map {
+            self.detector.detect(&pyr.gray, &[], config)?
+        } else {
+            Vec::new()
+        };
         let pts: Vec<Point2f> = corners.iter().map(|c| c.px).collect();
         let descriptors = self.detector.describe(&pyr.gray, gray_img, &pts)?;
         for (px, d) in pts.iter().zip(descriptors) {
@@ -245,12 +256,15 @@ impl VisualOdometry {
                 );
                 // A place found anywhere must be clearly supported: a third of the matches.
                 let found = found.filter(|(e, pairs)| 3 * e.inlier_count >= pairs.len());
-                keep_best(&mut best, found.map(|(e, p)| (e, p, a.id)));
+                keep_best(
+                    &mut best,
+                    found.map(|(e, p)| (e, p, (a.id, a.world_from_camera))),
+                );
             }
             ranked.first().map_or(0, |r| r.0)
         };
         match best {
-            Some((e, pairs, id)) => Ok(self.recovered(&query, e, &pairs, id)),
+            Some((e, pairs, matched)) => Ok(self.recovered(&query, e, &pairs, matched)),
             None => Err(FrontendError::NotLocalized {
                 index: frame.index,
                 t_s: frame.t_s,
@@ -269,18 +283,17 @@ mod tests {
 
     use super::*;
     use crate::points::Measurement;
-    use nalgebra::{Matrix3, Point2, Point3};
+    use nalgebra::{Matrix3, Point3};
 
-    fn features(seed: u8) -> Vec<KeyframeFeature> {
+    fn points(seed: u8) -> Vec<OrbPoint> {
         (0..50u8)
-            .map(|i| KeyframeFeature {
-                track_id: u64::from(i),
-                px: Point2::new(f32::from(i), 0.0),
-                measurement: Some(Measurement {
+            .map(|i| OrbPoint {
+                px: Point2f::new(f32::from(i), 0.0),
+                descriptor: [i.wrapping_mul(seed); 32],
+                p_camera: Measurement {
                     p: Point3::new(0.0, 0.0, 1.0),
                     cov: Matrix3::identity() * 1e-6,
-                }),
-                descriptor: Some([i.wrapping_mul(seed); 32]),
+                },
             })
             .collect()
     }
@@ -292,22 +305,19 @@ mod tests {
     #[test]
     fn keyframes_are_remembered_apart_and_the_oldest_forgotten_beyond_the_cap() {
         let mut m = PlaceMemory::new().unwrap();
+        assert!(m.wants(&at(0.0)));
         // 0.06 m apart: one kept per 0.15 m (every third, 0.18 m apart).
         for k in 0..10u64 {
-            m.remember(k, at(0.06 * k as f64), &features(3), 100);
+            m.remember(k, at(0.06 * k as f64), points(3), 100);
         }
         let kept: Vec<u64> = m.keyframes.keys().copied().collect();
         assert_eq!(kept, vec![0, 3, 6, 9]);
+        assert!(!m.wants(&at(0.6)) && m.wants(&at(0.7)));
         // A cap of 2 forgets the oldest, in the database too.
-        m.remember(10, at(1.0), &features(5), 2);
+        m.remember(10, at(1.0), points(5), 2);
         assert_eq!(m.keyframes.keys().copied().collect::<Vec<_>>(), vec![9, 10]);
         assert_eq!(m.database.len(), 2);
         assert!(!m.saved_map);
-        // A feature without depth or descriptor is not kept.
-        let mut partial = features(7);
-        partial[0].measurement = None;
-        partial[1].descriptor = None;
-        m.remember(11, at(2.0), &partial, 10);
-        assert_eq!(m.keyframes[&11].points.len(), 48);
+        assert_eq!(m.keyframes[&10].points.len(), 50);
     }
 }

@@ -311,6 +311,8 @@ impl VisualOdometry {
         }
         // 3b. Wide baseline: a lost or weakly tracked frame is matched by appearance.
         let (mut recovered_tracks, mut matched_keyframe) = (None, None);
+        // A relocalization measures the frame against the keyframe it found: its link.
+        let mut relocalized_link = None;
         let mut correspondences = corrs.len();
         if status == TrackingStatus::Lost || inliers < cfg.keyframe_min_inliers {
             let t_w = Instant::now();
@@ -323,6 +325,9 @@ impl VisualOdometry {
                 status = how;
                 recovered_tracks = Some(r.tracks);
                 (correspondences, matched_keyframe) = (r.matches, Some(r.matched_keyframe));
+                if how == TrackingStatus::Relocalized {
+                    relocalized_link = Some((r.matched_keyframe, r.matched_from_cur));
+                }
             }
             timing.recover_s = t_w.elapsed().as_secs_f64();
         }
@@ -377,9 +382,14 @@ impl VisualOdometry {
                 let dt = frame.t_s - self.prev_t;
                 self.shutter = self.readout_motion(&prev_from_cur, dt, frame.t_s, false);
             }
+            // A relocalized keyframe is linked to the keyframe it was found against, as
+            // measured: linked to the previous one, the link would state the odometry's
+            // drift between the two as a measurement (the more inliers, the firmer).
+            let (previous_id, previous_from_this) =
+                relocalized_link.unwrap_or((self.kf_count.saturating_sub(1), kf_from_cur));
             let odometry = OdometryLink {
-                previous_id: self.kf_count.saturating_sub(1),
-                previous_from_this: kf_from_cur,
+                previous_id,
+                previous_from_this,
                 information,
                 inliers,
             };
