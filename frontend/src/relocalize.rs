@@ -10,7 +10,7 @@
 //! keyframe, with depth; about 0.1 MB each): corners detected where they are, which a later
 //! view finds again, unlike the tracking's corners, described where Lucas-Kanade carried
 //! them (a frame jumping back to a place the run passed matched 43 of those at most, and
-//! 97 inliers of place features). A saved map's keyframes hold their mapped features (the
+//! 98 inliers of place features). A saved map's keyframes hold their mapped features (the
 //! tracking's corners). Each has a bag of words ([`crate::place`], the shipped vocabulary).
 //! A query frame's ORB features (multi-scale, plus, with a saved map, its tracking corners
 //! described as the map's are) give its own bag; the [`SHORTLIST`] keyframes with the best

@@ -219,7 +219,9 @@ pub fn data_lines(p: &Path) -> Vec<String> {
 
 /// A TUM folder in `dst` that plays `src`'s colour frames in `order` (0-based indices,
 /// comments excluded) at 15 Hz with fresh timestamps: each frame's depth image is the one
-/// nearest it in time, and the ground truth the pose nearest it, both written at the new
+/// nearest it in time, and the ground truth the pose nearest it when one lies within
+/// 0.02 s (TUM's association window; teddy's ground truth starts 0.14 s after its first
+/// image, and a pose that late put the first frames 40-50 mm off), both written at the new
 /// time. Paths are absolute: nothing is copied. A jump in `order` is a camera carried
 /// elsewhere between two frames (the kidnapped robot).
 pub fn reordered(src: &Path, dst: &Path, order: &[usize]) {
@@ -241,7 +243,6 @@ pub fn reordered(src: &Path, dst: &Path, order: &[usize]) {
         list.iter()
             .min_by(|a, b| (a.0 - t).abs().total_cmp(&(b.0 - t).abs()))
             .unwrap()
-            .1
             .clone()
     };
     let t0 = rgb[0].0;
@@ -250,8 +251,11 @@ pub fn reordered(src: &Path, dst: &Path, order: &[usize]) {
         let (t, file) = &rgb[i];
         let tn = t0 + k as f64 / 15.0;
         r += &format!("{tn:.6} {}\n", src.join(file).display());
-        d += &format!("{tn:.6} {}\n", src.join(nearest(&depth, *t)).display());
-        g += &format!("{tn:.6} {}\n", nearest(&gt, *t));
+        d += &format!("{tn:.6} {}\n", src.join(nearest(&depth, *t).1).display());
+        let (t_gt, pose) = nearest(&gt, *t);
+        if (t_gt - t).abs() <= 0.02 {
+            g += &format!("{tn:.6} {pose}\n");
+        }
     }
     std::fs::create_dir_all(dst).unwrap();
     for (name, text) in [("rgb.txt", r), ("depth.txt", d), ("groundtruth.txt", g)] {
