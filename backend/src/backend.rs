@@ -240,17 +240,22 @@ impl Backend {
 
     /// A back end that extends a saved map: its keyframes are kept, the oldest holds the
     /// gauge, and new keyframes (numbered after the map's) are matched against its points
-    /// like any others. Validates the configuration.
+    /// like any others. `place_features` are the saved keyframes' (for loop closure; a
+    /// keyframe without falls back to its mapped features). Validates the configuration.
     pub fn with_map(
         camera: PinholeCamera,
         config: BackendConfig,
         map: Map,
+        place_features: &BTreeMap<KeyframeId, Vec<stride_frontend::PlaceFeature>>,
     ) -> Result<Self, BackendError> {
         let mut backend = Self::new(camera, config)?;
         backend.first = map.keyframes().keys().next().copied();
         backend.map = map;
         let ids: Vec<KeyframeId> = backend.map.keyframes().keys().copied().collect();
         for id in ids {
+            if let Some(f) = place_features.get(&id) {
+                backend.places.keep(id, f);
+            }
             backend.index_place(id);
         }
         Ok(backend)

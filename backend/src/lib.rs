@@ -36,6 +36,7 @@ pub mod error;
 pub mod loop_closure;
 pub mod map;
 pub mod map_file;
+pub mod map_file_places;
 pub mod matching;
 mod pose_graph;
 pub mod revisit;

@@ -126,10 +126,11 @@ struct Verified {
     information: Matrix6<f64>,
 }
 
-/// A keyframe's place feature as loop closure keeps it: descriptor, point and covariance
-/// in the keyframe's camera frame in f32 (m, m^2; 80 bytes).
+/// A keyframe's place feature as loop closure keeps it: pixel, descriptor, point and
+/// covariance in the keyframe's camera frame in f32 (px, m, m^2; 88 bytes).
 #[derive(Debug, Clone, Copy)]
 struct PlacePoint {
+    px: [f32; 2],
     descriptor: [u8; 32],
     p_camera: [f32; 3],
     /// Upper triangle of the covariance, row by row.
@@ -140,6 +141,7 @@ impl PlacePoint {
     fn new(f: &PlaceFeature) -> Self {
         let (p, c) = (&f.measurement.p, &f.measurement.cov);
         Self {
+            px: [f.px.x, f.px.y],
             descriptor: f.descriptor,
             p_camera: [p.x as f32, p.y as f32, p.z as f32],
             cov: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33].map(|v| v as f32),
@@ -152,6 +154,14 @@ impl PlacePoint {
         Measurement {
             p: nalgebra::Point3::new(x, y, z),
             cov: nalgebra::Matrix3::new(a, b, c, b, d, e, c, e, f),
+        }
+    }
+
+    fn feature(&self) -> PlaceFeature {
+        PlaceFeature {
+            px: nalgebra::Point2::new(self.px[0], self.px[1]),
+            descriptor: self.descriptor,
+            measurement: self.measurement(),
         }
     }
 }
@@ -198,6 +208,18 @@ impl Places {
 }
 
 impl Backend {
+    /// The place features of the map's keyframes (those kept: none when loop closure is
+    /// off), by keyframe: what a saved map carries for relocalization and loop closure in a
+    /// later run. Their points and covariances come back in f32 precision.
+    pub fn place_features(&self) -> BTreeMap<KeyframeId, Vec<PlaceFeature>> {
+        self.places
+            .features
+            .iter()
+            .filter(|(id, _)| self.map.keyframe(**id).is_some())
+            .map(|(&id, f)| (id, f.iter().map(PlacePoint::feature).collect()))
+            .collect()
+    }
+
     /// Keyframe `k`'s features for matching keyframe against keyframe, with their points in
     /// its camera frame: its place features, or for a keyframe without them (from a saved
     /// map) its mapped features.

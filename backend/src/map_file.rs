@@ -1,12 +1,12 @@
 //! Maps saved to a file and read back: a run's keyframes, points, descriptors and
 //! covisibility, so that a later run can localize in the same frame and extend the map.
 //!
-//! # Format `stride-map`, version 1
+//! # Format `stride-map`, version 2
 //!
 //! One JSON object (UTF-8), written atomically (a temporary file renamed over the target):
 //!
-//! * `format`: `"stride-map"`; `version`: `1`. A reader refuses other formats and newer
-//!   versions.
+//! * `format`: `"stride-map"`; `version`: `2` (version 1 is the same without
+//!   `place_features`, and is read). A reader refuses other formats and newer versions.
 //! * `camera`: `width`, `height` (px), `fx`, `fy`, `cx`, `cy` (px) and `distortion`
 //!   (Brown-Conrady `[k1, k2, p1, p2, k3]`, zeros for none) of the camera the map was made
 //!   with. A run with another camera is refused: descriptors and depth noise depend on it.
@@ -18,7 +18,9 @@
 //!   (map frame, same layout as `world_from_map`), `features` and `covisibility`
 //!   (`[[other keyframe id, shared points], ...]`, non-zero counts, by id), and
 //!   `odometry` (`previous` keyframe id, `previous_from_this`, `information`: 36 numbers,
-//!   row-major 6x6, translation then rotation, and `active`) or `null`.
+//!   row-major 6x6, translation then rotation, and `active`) or `null`, and, when the run
+//!   kept them, `place_features` (the keyframe's multi-scale ORB features with depth, by
+//!   which a later run relocalizes and closes loops; layout in [`crate::map_file_places`]).
 //! * each feature: `track_id`, `px` `[column, row]` (px), `p_camera_m` `[x, y, z]` and
 //!   `cov_camera_m2` (9 numbers, row-major) of its depth measurement in the keyframe's camera
 //!   frame (or both `null`), `descriptor` (ORB, 64 hex digits, or `null`), and `point` (the
@@ -33,6 +35,7 @@
 //! naming the file and what is wrong.
 
 use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
+use crate::map_file_places::PlaceFeaturesDto;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
@@ -42,11 +45,12 @@ use stride_core::pose::{pose_from_translation_quaternion, pose_to_translation_qu
 use stride_frontend::features::OrbDescriptor;
 use stride_frontend::points::Measurement;
 use stride_frontend::recovery::{Anchor, AnchorPoint};
+use stride_frontend::PlaceFeature;
 
 /// The format's name, the first field of every file.
 pub const FORMAT: &str = "stride-map";
 /// The format version this build writes and the newest it reads.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// Why a map file could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -198,6 +202,8 @@ struct KeyframeDto {
     features: Vec<FeatureDto>,
     covisibility: Vec<(u64, u32)>,
     odometry: Option<OdometryDto>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    place_features: Option<PlaceFeaturesDto>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -245,13 +251,17 @@ pub struct SavedMap {
     pub world: String,
     /// Whether that world is gravity-aligned (z up).
     pub gravity_aligned: bool,
+    /// The place features of the keyframes that have them (camera frame, m), by keyframe.
+    pub place_features: BTreeMap<KeyframeId, Vec<PlaceFeature>>,
 }
 
-fn hex(d: &OrbDescriptor) -> String {
+/// An ORB descriptor as 64 hex digits.
+pub(crate) fn hex(d: &OrbDescriptor) -> String {
     d.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-fn unhex(s: &str) -> Option<OrbDescriptor> {
+/// [`hex`]'s descriptor back; `None` unless `s` is 64 hex digits.
+pub(crate) fn unhex(s: &str) -> Option<OrbDescriptor> {
     let mut out = [0u8; 32];
     if s.len() != 64 || !s.is_ascii() {
         return None;
@@ -269,7 +279,7 @@ fn finite(v: &[f64]) -> bool {
 impl SavedMap {
     /// The map's keyframes as relocalization needs them: each keyframe's features that
     /// observe a map point and have a descriptor and a measurement, with the (optimized)
-    /// point in the keyframe's camera frame.
+    /// point in the keyframe's camera frame, then its place features as measured.
     pub fn anchors(&self) -> Vec<Anchor> {
         let map = &self.map;
         map.keyframes()
@@ -290,6 +300,17 @@ impl SavedMap {
                             },
                         })
                     })
+                    .chain(
+                        self.place_features
+                            .get(&kf.id)
+                            .into_iter()
+                            .flatten()
+                            .map(|f| AnchorPoint {
+                                px: f.px,
+                                descriptor: f.descriptor,
+                                p_camera: f.measurement,
+                            }),
+                    )
                     .collect();
                 Anchor {
                     id: kf.id,
@@ -310,7 +331,13 @@ impl SavedMap {
     /// Writes the map to `path` atomically (a temporary file beside it, then a rename).
     pub fn save(&self, path: &Path) -> Result<(), MapFileError> {
         let map = &self.map;
-        let keyframes = map.keyframes().values().map(|kf| keyframe_dto(map, kf));
+        let keyframes = map.keyframes().values().map(|kf| {
+            let places = self.place_features.get(&kf.id);
+            KeyframeDto {
+                place_features: places.map(|f| PlaceFeaturesDto::of(f)),
+                ..keyframe_dto(map, kf)
+            }
+        });
         let points = map.points().iter().map(|(&id, p)| PointDto {
             id,
             p_world_m: [p.p_world.x, p.p_world.y, p.p_world.z],
@@ -370,12 +397,20 @@ impl SavedMap {
             .to_iso()
             .ok_or_else(|| corrupt("world_from_map is not a finite rigid transform".into()))?;
         let map = restore(&file).map_err(corrupt)?;
+        let place_features = file
+            .keyframes
+            .iter()
+            .filter_map(|k| Some((k.id, k.place_features.as_ref()?)))
+            .map(|(id, dto)| Ok((id, dto.features(id)?)))
+            .collect::<Result<_, String>>()
+            .map_err(corrupt)?;
         Ok(Self {
             camera: *camera,
             map,
             world_from_map,
             world: file.world,
             gravity_aligned: file.gravity_aligned,
+            place_features,
         })
     }
 }
@@ -415,6 +450,7 @@ fn keyframe_dto(map: &Map, kf: &Keyframe) -> KeyframeDto {
         features: features.collect(),
         covisibility: kf.covisibility.iter().map(|(&k, &n)| (k, n)).collect(),
         odometry,
+        place_features: None,
     }
 }
 

@@ -11,8 +11,33 @@ fn camera() -> PinholeCamera {
     PinholeCamera::new(525.0, 525.0, 319.5, 239.5, 640, 480).unwrap()
 }
 
+/// Two place features, every number exact in f32 (the file's precision for them).
+fn places(k: u8) -> Vec<PlaceFeature> {
+    (0..2u8)
+        .map(|i| PlaceFeature {
+            px: Point2::new(100.5 + f32::from(i), 50.25),
+            descriptor: [k ^ (3 * i + 1); 32],
+            measurement: Measurement {
+                p: Point3::new(0.25 * f64::from(i), -0.5, 1.5),
+                cov: Matrix3::new(
+                    0.0009765625,
+                    0.000244140625,
+                    0.0,
+                    0.000244140625,
+                    0.001953125,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0078125,
+                ),
+            },
+        })
+        .collect()
+}
+
 /// Three keyframes 0.1 m apart, each with `n` features; keyframes 0 and 1 share every
-/// point, keyframe 2 shares the first half with them. One odometry link.
+/// point, keyframe 2 shares the first half with them. One odometry link. Keyframes 0 and
+/// 1 have two place features each.
 fn sample() -> SavedMap {
     let n = 6u64;
     let mut map = Map::new();
@@ -66,6 +91,7 @@ fn sample() -> SavedMap {
         ),
         world: "the floor".into(),
         gravity_aligned: true,
+        place_features: [(0, places(0)), (1, places(1))].into_iter().collect(),
     }
 }
 
@@ -100,6 +126,7 @@ fn a_saved_map_reads_back_identical() {
     assert_eq!(back.map.keyframes(), original.map.keyframes());
     let points = |m: &Map| m.points().values().cloned().collect::<Vec<_>>();
     assert_eq!(points(&back.map), points(&original.map));
+    assert_eq!(back.place_features, original.place_features);
     assert_eq!(back.next_keyframe_id(), 3);
     // Nothing but the file is left in the folder (the write was atomic).
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
@@ -110,16 +137,44 @@ fn anchors_place_the_map_points_in_their_keyframes() {
     let s = sample();
     let anchors = s.anchors();
     assert_eq!(anchors.len(), 3);
-    // Keyframe 0: 5 features observe points, one of them (4) has no descriptor.
-    assert_eq!(anchors.first().unwrap().points.len(), 4);
+    // Keyframe 0: 5 features observe points, one of them (4) has no descriptor; then its
+    // two place features, as measured. Keyframe 2: 3 mapped features, no place features.
+    assert_eq!(anchors.first().unwrap().points.len(), 4 + 2);
+    assert_eq!(anchors.last().unwrap().points.len(), 3);
     for a in &anchors {
         let kf = s.map.keyframe(a.id).unwrap();
-        for p in &a.points {
+        let place = s.place_features.get(&a.id).map_or(0, Vec::len);
+        let (mapped, placed) = a.points.split_at(a.points.len() - place);
+        for p in mapped {
             let f = kf.features.iter().find(|f| f.px == p.px).unwrap();
             let world = s.map.point(f.point.unwrap()).unwrap().p_world;
             assert!((a.world_from_camera * p.p_camera.p - world).norm() < 1e-12);
         }
+        for (p, f) in placed
+            .iter()
+            .zip(s.place_features.get(&a.id).into_iter().flatten())
+        {
+            assert_eq!(
+                (p.px, p.descriptor, p.p_camera),
+                (f.px, f.descriptor, f.measurement)
+            );
+        }
     }
+}
+
+#[test]
+fn a_version_1_map_without_place_features_still_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = saved(&dir);
+    let mut v: Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    v["version"] = 1.into();
+    for k in v["keyframes"].as_array_mut().unwrap() {
+        k.as_object_mut().unwrap().remove("place_features");
+    }
+    std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
+    let back = SavedMap::load(&path, &camera()).unwrap();
+    assert!(back.place_features.is_empty());
+    assert_eq!(back.map.keyframes(), sample().map.keyframes());
 }
 
 #[test]
@@ -142,8 +197,8 @@ fn bad_files_get_an_error_that_says_what_is_wrong() {
     let e = SavedMap::load(&path, &other).unwrap_err();
     assert!(matches!(e, MapFileError::Camera { .. }), "{e}");
 
-    let e = load_edited(|v| v["version"] = 2.into());
-    assert!(matches!(e, MapFileError::Version { version: 2, .. }), "{e}");
+    let e = load_edited(|v| v["version"] = 3.into());
+    assert!(matches!(e, MapFileError::Version { version: 3, .. }), "{e}");
     let e = load_edited(|v| v["format"] = "orb-atlas".into());
     assert!(matches!(e, MapFileError::Version { .. }), "{e}");
 
@@ -178,6 +233,28 @@ fn bad_files_get_an_error_that_says_what_is_wrong() {
             points.push(first);
         }),
         "appears twice",
+    );
+    corrupt(
+        load_edited(|v| {
+            let px = v["keyframes"][1]["place_features"]["px"]
+                .as_array_mut()
+                .unwrap();
+            px.pop();
+        }),
+        "keyframe 1: place feature columns disagree",
+    );
+    corrupt(
+        load_edited(|v| v["keyframes"][0]["place_features"]["cov_camera_m2"][9] = (-1.0).into()),
+        "keyframe 0 place feature 1: point behind the camera or variance not positive",
+    );
+    corrupt(
+        load_edited(|v| {
+            let d = v["keyframes"][0]["place_features"]["descriptors"]
+                .as_str()
+                .unwrap();
+            v["keyframes"][0]["place_features"]["descriptors"] = d.replacen('0', "g", 1).into();
+        }),
+        "keyframe 0 place feature",
     );
     let e = load_edited(|v| v["keyframes"][0]["surprise"] = 1.into());
     assert!(matches!(e, MapFileError::Parse { .. }), "{e}");

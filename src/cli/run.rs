@@ -370,17 +370,23 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     let mut out = run_sequence(&seq, pipeline, a.max_frames, |_| pb.inc(1))?;
     pb.finish_and_clear();
     let to_save = match (&a.save_map, out.run.backend.as_mut()) {
-        (Some(path), Some(b)) => Some((path, std::mem::take(&mut b.map), out.run.world)),
+        (Some(path), Some(b)) => Some((
+            path,
+            std::mem::take(&mut b.map),
+            std::mem::take(&mut b.place_features),
+            out.run.world,
+        )),
         _ => None,
     };
     let summary = super::run_files::write_run(a, &config, &seq, out)?;
-    if let Some((path, map, world)) = to_save {
+    if let Some((path, map, place_features, world)) = to_save {
         let saved = SavedMap {
             camera: seq.camera().camera,
             map,
             world_from_map: world.world_from_slam,
             world: world_origin.unwrap_or_else(|| world.describe()),
             gravity_aligned: world.is_gravity_aligned(),
+            place_features,
         };
         saved.save(path)?;
         tracing::info!(

@@ -101,6 +101,7 @@ pub(crate) fn finish_backend(c: Coupling) -> Result<BackendSummary, PipelineErro
     let mut reports = c.reports;
     let finished = c.thread.finish()?;
     reports.extend(finished.late_updates.into_iter().map(|u| u.report));
+    let place_features = finished.backend.place_features();
     let map = finished.backend.into_map();
     let ids = map.keyframes().keys().chain(map.culled().keys());
     let mut keyframe_poses: Vec<(u64, Isometry3<f64>)> =
@@ -116,5 +117,6 @@ pub(crate) fn finish_backend(c: Coupling) -> Result<BackendSummary, PipelineErro
         points_world: map.points().values().map(|p| p.p_world).collect(),
         keyframe_poses,
         map,
+        place_features,
     })
 }

@@ -102,6 +102,9 @@ pub struct BackendSummary {
     pub keyframe_poses: Vec<(u64, Isometry3<f64>)>,
     /// The final map itself, in the SLAM's frame (what `--save-map` writes).
     pub map: stride_backend::map::Map,
+    /// The place features of the final map's keyframes (camera frames, m), by keyframe
+    /// (none when loop closure was off): `--save-map` writes them too.
+    pub place_features: std::collections::BTreeMap<u64, Vec<stride_frontend::PlaceFeature>>,
 }
 
 impl BackendSummary {

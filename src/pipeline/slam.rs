@@ -74,12 +74,12 @@ impl Slam {
         let mut vo = VisualOdometry::new(camera, config).map_err(PipelineError::Odometry)?;
         let prior = saved.map(|s| {
             vo.start_in_map(s.anchors(), s.next_keyframe_id());
-            s.map
+            (s.map, s.place_features)
         });
         let coupling = match backend {
             Some((config, schedule)) => Some(Coupling {
                 thread: BackendThread::spawn(match prior {
-                    Some(map) => Backend::with_map(camera, config.clone(), map)?,
+                    Some((map, places)) => Backend::with_map(camera, config.clone(), map, &places)?,
                     None => Backend::new(camera, config.clone())?,
                 })?,
                 config,
