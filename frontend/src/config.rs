@@ -115,8 +115,9 @@ pub struct VoConfig {
     pub max_gyroscope_disagreement_deg: f64,
     /// Compute ORB descriptors of keyframe keypoints (for map matching by a back end).
     pub orb_descriptors: bool,
-    /// Detect multi-scale ORB features in every keyframe for a back end's loop closure
-    /// ([`crate::result::KeyframeInfo::place_features`]; about 2 ms per keyframe).
+    /// Detect multi-scale ORB features in every keyframe for a back end's loop closure and
+    /// saved maps ([`crate::result::KeyframeInfo::place_features`]; about 2 ms per
+    /// keyframe). Relocalization detects them in the keyframes it remembers either way.
     pub place_features: bool,
     /// Wide-baseline recovery ([`crate::recovery`]): when Lucas-Kanade loses a frame, or
     /// keeps fewer than `keyframe_min_inliers` inliers, the frame's ORB features are matched

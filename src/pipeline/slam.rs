@@ -60,7 +60,8 @@ impl Slam {
         backend: Option<(BackendConfig, Schedule)>,
         saved: Option<SavedMap>,
     ) -> Result<Self, PipelineError> {
-        // Place features serve only the back end's loop closure.
+        // The keyframes' place features go to the back end for its loop closure (which also
+        // writes them into a saved map); relocalization detects its own when it needs them.
         let loops = backend.as_ref().is_some_and(|(b, _)| {
             b.loop_closure.enabled && b.mode == stride_backend::BackendMode::BundleAdjustment
         });
