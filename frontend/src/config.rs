@@ -131,7 +131,7 @@ pub struct VoConfig {
     pub recovery_min_inliers: usize,
     /// Relocalization ([`crate::relocalize`]): a frame that tracking and recovery lost is
     /// looked up by appearance among this run's keyframes (one per 0.15 m or 15 degrees, at
-    /// most this many, each remembered by its place features, about 0.1 MB) and a saved
+    /// most this many, each remembered by its place features, about 75 KB) and a saved
     /// map's. `None` disables it within a run (a saved map is still searched for the first
     /// frame).
     #[serde(with = "stride_core::serde_opt")]

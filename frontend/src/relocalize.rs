@@ -7,7 +7,7 @@
 //! since the last one kept (the recent keyframes' spacing), at most
 //! `relocalization_keyframes` of them (the oldest forgotten first). This run's are
 //! remembered by their place features (up to 1,000 multi-scale ORB features detected in the
-//! keyframe, with depth; about 0.1 MB each): corners detected where they are, which a later
+//! keyframe, with depth, kept in f32: about 75 KB each): corners detected where they are, which a later
 //! view finds again, unlike the tracking's corners, described where Lucas-Kanade carried
 //! them (a frame jumping back to a place the run passed matched 43 of those at most, and
 //! 98 inliers of place features). A saved map's keyframes hold their mapped features (the
@@ -33,8 +33,8 @@ use crate::klt::Pyramid;
 use crate::motion::MotionParams;
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
-    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
-    Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
+    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, KeptPoint,
+    OrbPoint, Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
 };
 use crate::result::TrackingStatus;
 use crate::vo::VisualOdometry;
@@ -88,7 +88,7 @@ impl PlaceMemory {
     }
 
     fn insert(&mut self, kf: AnchorKeyframe) {
-        let descriptors: Vec<OrbDescriptor> = kf.points.iter().map(|p| p.descriptor).collect();
+        let descriptors: Vec<OrbDescriptor> = kf.points.iter().map(KeptPoint::descriptor).collect();
         self.database
             .add(kf.id, self.vocabulary.transform(&descriptors));
         self.keyframes.insert(kf.id, kf);
@@ -128,7 +128,7 @@ impl PlaceMemory {
         self.insert(AnchorKeyframe {
             id,
             world_from_camera: world_from_kf,
-            points,
+            points: points.iter().map(KeptPoint::new).collect(),
         });
         self.own.push_back(id);
         self.last_own = Some(world_from_kf);
@@ -151,7 +151,7 @@ impl PlaceMemory {
             .query(&bow, SHORTLIST, |_| true)
             .iter()
             .filter_map(|m| self.keyframes.get(&m.id))
-            .map(|kf| (match_points(query, &kf.points).len(), kf))
+            .map(|kf| (match_points(query, &kf.orb_points()).len(), kf))
             .collect();
         ranked.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
         ranked.truncate(RELOCALIZATION_CANDIDATES);
@@ -248,7 +248,7 @@ impl VisualOdometry {
             for (_, a) in &ranked {
                 let found = estimate_against(
                     &query,
-                    &a.points,
+                    &a.orb_points(),
                     &a.world_from_camera,
                     &params,
                     config.refine_iterations,
