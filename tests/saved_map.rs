@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{data, derived};
+use common::{data, derived, reordered};
 use std::path::Path;
 use stride_core::trajectory::Trajectory;
 use stride_datasets::trajectory_file::read_tum_trajectory;
@@ -133,7 +133,7 @@ fn a_bad_map_file_is_a_clear_error() {
 }
 
 #[test]
-fn a_run_starting_past_the_maps_end_localizes_by_the_saved_place_features() {
+fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
     let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
         return;
     };
@@ -182,4 +182,23 @@ fn a_run_starting_past_the_maps_end_localizes_by_the_saved_place_features() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(err.contains("not localized in the saved map"), "{err}");
+
+    // A run that goes on from the map's end and then walks back over the mapped place
+    // closes loops with the saved keyframes by their place features. Measured (seeds 1-3):
+    // 4 loops, ATE 5.2-5.3 mm; with the version-1 copy 0 loops, 5.9-6.8 mm.
+    let back: Vec<usize> = (100..195).chain((0..195).rev()).collect();
+    let back_over = tmp.path().join("back_over");
+    reordered(&teddy, &back_over, &back);
+    let loops = |map: &str, name: &str| {
+        let load = ["--camera", "fr3", "--no-map", "--load-map", map];
+        let r = common::run_report("run", &back_over, &tmp.path().join(name), &load);
+        (
+            r["loop_closures"].as_u64().unwrap(),
+            common::num(&r["ate"], "rmse"),
+        )
+    };
+    let (with, without) = (loops(map_arg, "four"), loops(old.to_str().unwrap(), "five"));
+    eprintln!("back over the saved map: {with:?} (loops, ATE m), version 1: {without:?}");
+    assert!(with.0 >= 1 && with.0 > without.0, "{with:?} {without:?}");
+    assert!(with.1 < 0.008, "{with:?}");
 }
