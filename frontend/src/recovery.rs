@@ -58,15 +58,16 @@ pub(crate) const SPACING_RAD: f64 = 0.26;
 /// tracking default) finds a clean sample only about half of the time.
 pub(crate) const RANSAC_ITERATIONS: usize = 2000;
 
-/// A feature of a saved map's keyframe that observes a map point.
+/// A feature of a saved map's keyframe: one that observes a map point, or one of the
+/// keyframe's place features.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AnchorPoint {
     /// Pixel position in the keyframe (px).
     pub px: Point2<f32>,
     /// ORB descriptor.
     pub descriptor: OrbDescriptor,
-    /// The map point in the keyframe's camera frame (m), with the covariance of the
-    /// keyframe's measurement of it (camera frame, m^2).
+    /// The map point (a place feature: its measured point) in the keyframe's camera frame
+    /// (m), with the covariance of the keyframe's measurement of it (camera frame, m^2).
     pub p_camera: Measurement,
 }
 
@@ -77,7 +78,7 @@ pub struct Anchor {
     pub id: u64,
     /// `world_from_camera` in the map's frame (m).
     pub world_from_camera: Isometry3<f64>,
-    /// Its features that observe map points.
+    /// Its features that observe map points, then its place features.
     pub points: Vec<AnchorPoint>,
 }
 
@@ -128,6 +129,7 @@ pub(crate) struct KeptPoint {
 }
 
 impl KeptPoint {
+    /// `o` rounded to f32.
     pub(crate) fn new(o: &OrbPoint) -> Self {
         let (p, c) = (&o.p_camera.p, &o.p_camera.cov);
         Self {
@@ -138,10 +140,12 @@ impl KeptPoint {
         }
     }
 
+    /// Its ORB descriptor.
     pub(crate) fn descriptor(&self) -> OrbDescriptor {
         self.descriptor
     }
 
+    /// The point back as the matcher takes it (f64, the covariance symmetric).
     pub(crate) fn orb(&self) -> OrbPoint {
         let [x, y, z] = self.p.map(f64::from);
         let [a, b, c, d, e, f] = self.cov.map(f64::from);

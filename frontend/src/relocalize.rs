@@ -6,18 +6,19 @@
 //! this run's own: one keyframe whenever the camera has moved 0.15 m or turned 15 degrees
 //! since the last one kept (the recent keyframes' spacing), at most
 //! `relocalization_keyframes` of them (the oldest forgotten first). This run's are
-//! remembered by their place features (up to 1,000 multi-scale ORB features detected in the
-//! keyframe, with depth, kept in f32: about 75 KB each): corners detected where they are, which a later
-//! view finds again, unlike the tracking's corners, described where Lucas-Kanade carried
-//! them (a frame jumping back to a place the run passed matched 43 of those at most, and
-//! 98 inliers of place features). A saved map's keyframes hold their mapped features (the
-//! tracking's corners). Each has a bag of words ([`crate::place`], the shipped vocabulary).
-//! A query frame's ORB features (multi-scale, plus, with a saved map, its tracking corners
+//! remembered by their place features (up to 1,000 multi-scale ORB features detected in
+//! the keyframe, with depth, kept in f32: about 75 KB each): corners detected where they
+//! are, which a later view finds again, unlike the tracking's corners, described where
+//! Lucas-Kanade carried them (a frame jumping back to a place the run passed matched 43 of
+//! those at most, and 98 inliers of place features). A saved map's keyframes hold their
+//! mapped features (the tracking's corners) and, from format version 2 on, their place
+//! features. Each has a bag of words ([`crate::place`], the shipped vocabulary). A query
+//! frame's ORB features (multi-scale, plus, with a saved map, its tracking corners
 //! described as the map's are) give its own bag; the [`SHORTLIST`] keyframes with the best
 //! scores are matched by descriptor, and RANSAC runs on the [`RELOCALIZATION_CANDIDATES`]
 //! with the most matches, as for recovery but with more support required ([`MIN_INLIERS`],
-//! a third of the matches). A saved map
-//! small enough to fit the shortlist is thus searched exhaustively.
+//! a third of the matches). A saved map small enough to fit the shortlist is thus searched
+//! exhaustively.
 //!
 //! The run's own keyframes are placed by the odometry's poses: a relocalized frame is put
 //! where the odometry had put that place, so the jump it makes is consistent with the
