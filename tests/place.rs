@@ -30,7 +30,8 @@ fn bags_of_words_rank_verifiable_places_above_chance() {
         num(recall, "verifiable_at_top"),
         num(recall, "verifiable_at_top_by_chance"),
     );
-    // Measured: 0.45 against 0.23 by chance over 165 queries.
+    // Measured: 0.66 against 0.32 by chance over 184 queries, images described by their
+    // place features as keyframes are (0.45 against 0.23 over 165 by the tracking's corners).
     assert!(num(recall, "queries") >= 100.0, "{r}");
     assert!(
         found > 1.5 * chance,

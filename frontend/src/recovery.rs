@@ -189,28 +189,29 @@ pub(crate) struct RecentKeyframes {
     pub(crate) place_orb: Ptr<ORB>,
 }
 
+/// OpenCV's ORB as recovery (`levels` 8) and the place features ([`PLACE_LEVELS`]) use
+/// it: the same extractor but for its pyramid's depth.
+fn orb_extractor(levels: i32) -> Result<Ptr<ORB>, FrontendError> {
+    Ok(ORB::create(
+        ORB_FEATURES,
+        1.2,
+        levels,
+        31,
+        0,
+        2,
+        ORB_ScoreType::HARRIS_SCORE,
+        31,
+        ORB_FAST_THRESHOLD,
+    )?)
+}
+
 impl RecentKeyframes {
     /// None yet.
     pub(crate) fn new() -> Result<Self, FrontendError> {
-        // The same extractor but for its pyramid's depth.
-        let extractor = |levels| {
-            ORB::create(
-                ORB_FEATURES,
-                1.2,
-                levels,
-                31,
-                0,
-                2,
-                ORB_ScoreType::HARRIS_SCORE,
-                31,
-                ORB_FAST_THRESHOLD,
-            )
-        };
-        let (orb, place_orb) = (extractor(8)?, extractor(PLACE_LEVELS)?);
         Ok(Self {
             keyframes: VecDeque::new(),
-            orb,
-            place_orb,
+            orb: orb_extractor(8)?,
+            place_orb: orb_extractor(PLACE_LEVELS)?,
         })
     }
 
@@ -245,6 +246,36 @@ impl RecentKeyframes {
         while self.keyframes.len() > keep {
             self.keyframes.pop_front();
         }
+    }
+}
+
+/// Place features as a keyframe gets them ([`crate::KeyframeInfo::place_features`]), for
+/// tools that describe images the way relocalization and loop closure see keyframes
+/// (`stride bench place`).
+pub struct PlaceExtractor {
+    orb: Ptr<ORB>,
+}
+
+impl PlaceExtractor {
+    /// The extractor the odometry uses for keyframes.
+    pub fn new() -> Result<Self, FrontendError> {
+        Ok(Self {
+            orb: orb_extractor(PLACE_LEVELS)?,
+        })
+    }
+
+    /// The ORB descriptors of `gray`'s place features: those with a depth in `depth_m`
+    /// that `config`'s range and edge test accept (a still camera, `camera` the image's).
+    pub fn descriptors(
+        &mut self,
+        gray: &Mat,
+        depth_m: &DepthImage,
+        camera: &PinholeCamera,
+        config: &VoConfig,
+    ) -> Result<Vec<OrbDescriptor>, FrontendError> {
+        let still = ShutterMotion::default();
+        let points = orb_points(&mut self.orb, gray, depth_m, camera, &still, config)?;
+        Ok(points.iter().map(|p| p.descriptor).collect())
     }
 }
 

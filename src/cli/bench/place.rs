@@ -9,9 +9,9 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
-use stride_frontend::features::{gray_mat, match_descriptors, Detector, OrbDescriptor};
+use stride_frontend::features::{gray_mat, match_descriptors, OrbDescriptor};
 use stride_frontend::place::{BowVector, PlaceDatabase, Vocabulary};
-use stride_frontend::recovery::{MAX_HAMMING, RATIO};
+use stride_frontend::recovery::{PlaceExtractor, MAX_HAMMING, RATIO};
 use stride_frontend::VoConfig;
 
 #[derive(Debug, Args)]
@@ -51,22 +51,18 @@ pub fn bench_place(a: PlaceBenchArgs) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?,
         None => Vocabulary::embedded()?,
     };
+    // Each image described as keyframes are (their place features), which is what
+    // relocalization and loop closure look up.
     let vo = VoConfig::default();
-    let mut detector = Detector::new(&vo)?;
+    let mut extractor = PlaceExtractor::new()?;
+    let camera = seq.camera.camera;
     let pb = crate::cli::progress_bar(seq.len(), "describing", !a.json);
     let (mut times, mut descriptors, mut bows, mut transform_ms) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for i in 0..seq.len() {
         let frame = seq.load_frame(i)?;
-        let gray_img = frame.rgb.to_gray();
-        let gray = gray_mat(&gray_img)?;
-        let corners = detector.detect(&gray, &[], &vo)?;
-        let pts: Vec<_> = corners.iter().map(|c| c.px).collect();
-        let d: Vec<OrbDescriptor> = detector
-            .describe(&gray, &gray_img, &pts)?
-            .into_iter()
-            .flatten()
-            .collect();
+        let gray = gray_mat(&frame.rgb.to_gray())?;
+        let d: Vec<OrbDescriptor> = extractor.descriptors(&gray, &frame.depth_m, &camera, &vo)?;
         let t = Instant::now();
         bows.push(vocabulary.transform(&d));
         transform_ms.push(t.elapsed().as_secs_f64() * 1e3);
