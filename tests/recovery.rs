@@ -236,7 +236,8 @@ fn a_relocalized_keyframe_is_linked_to_the_keyframe_it_was_found_against() {
     let matched = r.matched_keyframe.unwrap();
     let link = r.new_keyframe.as_ref().unwrap().odometry.as_ref().unwrap();
     // Linked to the previous keyframe instead, the link would carry the odometry's drift
-    // since the matched one as if measured (a kidnapped run lost 1.5 mm of ATE by it).
+    // since the matched one as if measured (the kidnapped run: 10.1 mm instead of 7.9,
+    // seeds 1-3 mean).
     assert_eq!(link.previous_id, matched);
     assert!(matched + 10 < r.keyframe_id, "{matched} {}", r.keyframe_id);
     assert_eq!(link.inliers, r.inliers);
