@@ -45,7 +45,7 @@ use stride_frontend::features::match_descriptors;
 use stride_frontend::motion::{estimate, Correspondence, MotionParams};
 use stride_frontend::place::{PlaceDatabase, Vocabulary};
 use stride_frontend::points::Measurement;
-use stride_frontend::{InlierTest, PlaceFeature};
+use stride_frontend::{InlierTest, PackedFeature, PlaceFeature};
 
 /// Parameters of loop closure.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -126,53 +126,13 @@ struct Verified {
     information: Matrix6<f64>,
 }
 
-/// A keyframe's place feature as loop closure keeps it: pixel, descriptor, point and
-/// covariance in the keyframe's camera frame in f32 (px, m, m^2; 88 bytes).
-#[derive(Debug, Clone, Copy)]
-struct PlacePoint {
-    px: [f32; 2],
-    descriptor: [u8; 32],
-    p_camera: [f32; 3],
-    /// Upper triangle of the covariance, row by row.
-    cov: [f32; 6],
-}
-
-impl PlacePoint {
-    fn new(f: &PlaceFeature) -> Self {
-        let (p, c) = (&f.measurement.p, &f.measurement.cov);
-        Self {
-            px: [f.px.x, f.px.y],
-            descriptor: f.descriptor,
-            p_camera: [p.x as f32, p.y as f32, p.z as f32],
-            cov: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33].map(|v| v as f32),
-        }
-    }
-
-    fn measurement(&self) -> Measurement {
-        let [x, y, z] = self.p_camera.map(f64::from);
-        let [a, b, c, d, e, f] = self.cov.map(f64::from);
-        Measurement {
-            p: nalgebra::Point3::new(x, y, z),
-            cov: nalgebra::Matrix3::new(a, b, c, b, d, e, c, e, f),
-        }
-    }
-
-    fn feature(&self) -> PlaceFeature {
-        PlaceFeature {
-            px: nalgebra::Point2::new(self.px[0], self.px[1]),
-            descriptor: self.descriptor,
-            measurement: self.measurement(),
-        }
-    }
-}
-
 /// The keyframes' place features and bags of words (see
 /// [`LoopParams::appearance_candidates`]).
 pub(crate) struct Places {
     vocabulary: Option<std::sync::Arc<Vocabulary>>,
     database: PlaceDatabase,
     /// Each live keyframe's place features (none kept when loop closure is off).
-    features: BTreeMap<KeyframeId, Vec<PlacePoint>>,
+    features: BTreeMap<KeyframeId, Vec<PackedFeature>>,
     keep_features: bool,
 }
 
@@ -187,7 +147,7 @@ impl Places {
     pub(crate) fn keep(&mut self, id: KeyframeId, features: &[PlaceFeature]) {
         if self.keep_features && !features.is_empty() {
             self.features
-                .insert(id, features.iter().map(PlacePoint::new).collect());
+                .insert(id, features.iter().map(PackedFeature::new).collect());
         }
     }
 
@@ -216,7 +176,7 @@ impl Backend {
             .features
             .iter()
             .filter(|(id, _)| self.map.keyframe(**id).is_some())
-            .map(|(&id, f)| (id, f.iter().map(PlacePoint::feature).collect()))
+            .map(|(&id, f)| (id, f.iter().map(PackedFeature::feature).collect()))
             .collect()
     }
 

@@ -10,10 +10,8 @@
 //! variance positive.
 
 use crate::map_file::{hex, unhex};
-use nalgebra::{Matrix3, Point2, Point3};
 use serde::{Deserialize, Serialize};
-use stride_frontend::points::Measurement;
-use stride_frontend::PlaceFeature;
+use stride_frontend::{PackedFeature, PlaceFeature};
 
 /// One keyframe's place features, column by column (see the module documentation).
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -29,12 +27,10 @@ impl PlaceFeaturesDto {
     /// The columns of `features` (points and covariances rounded to f32).
     pub(crate) fn of(features: &[PlaceFeature]) -> Self {
         let mut dto = Self::default();
-        for f in features {
-            let (p, c) = (&f.measurement.p, &f.measurement.cov);
-            dto.px.extend([f.px.x, f.px.y]);
-            dto.p_camera_m.extend([p.x, p.y, p.z].map(|v| v as f32));
-            let upper = [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33];
-            dto.cov_camera_m2.extend(upper.map(|v| v as f32));
+        for f in features.iter().map(PackedFeature::new) {
+            dto.px.extend(f.px);
+            dto.p_camera_m.extend(f.p_camera_m);
+            dto.cov_camera_m2.extend(f.cov_upper_m2);
             dto.descriptors.push_str(&hex(&f.descriptor));
         }
         dto
@@ -70,22 +66,19 @@ impl PlaceFeaturesDto {
                 if !all.clone().all(|v| v.is_finite()) {
                     return Err(bad("a number is not finite"));
                 }
-                let [x, y, z] = [p[0], p[1], p[2]].map(f64::from);
-                let [xx, xy, xz, yy, yz, zz] = [c[0], c[1], c[2], c[3], c[4], c[5]].map(f64::from);
-                if z <= 0.0 || xx <= 0.0 || yy <= 0.0 || zz <= 0.0 {
+                if p[2] <= 0.0 || c[0] <= 0.0 || c[3] <= 0.0 || c[5] <= 0.0 {
                     return Err(bad("point behind the camera or variance not positive"));
                 }
                 let digits = self.descriptors.get(64 * i..64 * (i + 1)).unwrap_or("");
                 let descriptor = unhex(digits)
                     .ok_or_else(|| bad(&format!("descriptor {digits:?} is not 64 hex digits")))?;
-                Ok(PlaceFeature {
-                    px: Point2::new(px[0], px[1]),
+                Ok(PackedFeature {
+                    px: [px[0], px[1]],
                     descriptor,
-                    measurement: Measurement {
-                        p: Point3::new(x, y, z),
-                        cov: Matrix3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz),
-                    },
-                })
+                    p_camera_m: [p[0], p[1], p[2]],
+                    cov_upper_m2: [c[0], c[1], c[2], c[3], c[4], c[5]],
+                }
+                .feature())
             })
             .collect()
     }

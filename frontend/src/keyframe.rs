@@ -210,14 +210,7 @@ impl VisualOdometry {
             Vec::new()
         };
         let place_features = if self.config.place_features {
-            place_points
-                .iter()
-                .map(|o| PlaceFeature {
-                    px: Point2::new(o.px.x, o.px.y),
-                    descriptor: o.descriptor,
-                    measurement: o.p_camera,
-                })
-                .collect()
+            place_points.iter().map(PlaceFeature::from).collect()
         } else {
             Vec::new()
         };

@@ -35,8 +35,8 @@ pub use config::{InlierTest, VoConfig};
 pub use error::FrontendError;
 pub use gyro::GyroscopeFrames;
 pub use result::{
-    DepthLink, FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, PlaceFeature, StageTimes,
-    TrackingStatus,
+    DepthLink, FrameResult, KeyframeFeature, KeyframeInfo, OdometryLink, PackedFeature,
+    PlaceFeature, StageTimes, TrackingStatus,
 };
 pub use vo::VisualOdometry;
 

@@ -25,7 +25,8 @@ use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams
 use crate::points::{measure, Measurement, ShutterMotion};
 use crate::vo::VisualOdometry;
 use crate::VoConfig;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2};
+use crate::{PackedFeature, PlaceFeature};
+use nalgebra::{Isometry3, Matrix6, Point2};
 use opencv::core::{KeyPoint, Mat, Point2f, Ptr, Vector};
 use opencv::features2d::{Feature2DTrait, ORB_ScoreType, ORB};
 use opencv::prelude::*;
@@ -83,17 +84,20 @@ pub struct Anchor {
 }
 
 /// A remembered keyframe (a saved map's, or one of this run's) with its features, kept in
-/// f32 ([`KeptPoint`]) since relocalization may hold thousands of them.
+/// f32 ([`PackedFeature`]) since relocalization may hold thousands of them.
 pub(crate) struct AnchorKeyframe {
     pub(crate) id: u64,
     pub(crate) world_from_camera: Isometry3<f64>,
-    pub(crate) points: Vec<KeptPoint>,
+    pub(crate) points: Vec<PackedFeature>,
 }
 
 impl AnchorKeyframe {
     /// Its features as the matcher takes them.
     pub(crate) fn orb_points(&self) -> Vec<OrbPoint> {
-        self.points.iter().map(KeptPoint::orb).collect()
+        self.points
+            .iter()
+            .map(|p| OrbPoint::from(p.feature()))
+            .collect()
     }
 }
 
@@ -106,56 +110,13 @@ impl From<Anchor> for AnchorKeyframe {
                 .points
                 .iter()
                 .map(|p| {
-                    KeptPoint::new(&OrbPoint {
-                        px: Point2f::new(p.px.x, p.px.y),
+                    PackedFeature::new(&PlaceFeature {
+                        px: p.px,
                         descriptor: p.descriptor,
-                        p_camera: p.p_camera,
+                        measurement: p.p_camera,
                     })
                 })
                 .collect(),
-        }
-    }
-}
-
-/// An [`OrbPoint`] in f32: pixel (px), descriptor, point (m) and the upper triangle of its
-/// covariance (m^2, row by row), all in its keyframe's camera frame; 76 bytes instead of
-/// 136. The rounding (7 significant digits) is far below the depth's noise.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct KeptPoint {
-    px: [f32; 2],
-    descriptor: OrbDescriptor,
-    p: [f32; 3],
-    cov: [f32; 6],
-}
-
-impl KeptPoint {
-    /// `o` rounded to f32.
-    pub(crate) fn new(o: &OrbPoint) -> Self {
-        let (p, c) = (&o.p_camera.p, &o.p_camera.cov);
-        Self {
-            px: [o.px.x, o.px.y],
-            descriptor: o.descriptor,
-            p: [p.x, p.y, p.z].map(|v| v as f32),
-            cov: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33].map(|v| v as f32),
-        }
-    }
-
-    /// Its ORB descriptor.
-    pub(crate) fn descriptor(&self) -> OrbDescriptor {
-        self.descriptor
-    }
-
-    /// The point back as the matcher takes it (f64, the covariance symmetric).
-    pub(crate) fn orb(&self) -> OrbPoint {
-        let [x, y, z] = self.p.map(f64::from);
-        let [a, b, c, d, e, f] = self.cov.map(f64::from);
-        OrbPoint {
-            px: Point2f::new(self.px[0], self.px[1]),
-            descriptor: self.descriptor,
-            p_camera: Measurement {
-                p: nalgebra::Point3::new(x, y, z),
-                cov: Matrix3::new(a, b, c, b, d, e, c, e, f),
-            },
         }
     }
 }
@@ -167,6 +128,26 @@ pub(crate) struct OrbPoint {
     pub(crate) px: Point2f,
     pub(crate) descriptor: OrbDescriptor,
     pub(crate) p_camera: Measurement,
+}
+
+impl From<PlaceFeature> for OrbPoint {
+    fn from(f: PlaceFeature) -> Self {
+        Self {
+            px: Point2f::new(f.px.x, f.px.y),
+            descriptor: f.descriptor,
+            p_camera: f.measurement,
+        }
+    }
+}
+
+impl From<&OrbPoint> for PlaceFeature {
+    fn from(o: &OrbPoint) -> Self {
+        Self {
+            px: Point2::new(o.px.x, o.px.y),
+            descriptor: o.descriptor,
+            measurement: o.p_camera,
+        }
+    }
 }
 
 /// A recent keyframe as recovery needs it.

@@ -1,7 +1,7 @@
 //! Tests of recovery's building blocks: descriptor matching and the remembered points.
 
 use super::*;
-use nalgebra::Point3;
+use nalgebra::{Matrix3, Point3};
 
 /// A point whose descriptor has the first `ones` bits set.
 fn point(ones: usize) -> OrbPoint {
@@ -20,20 +20,22 @@ fn point(ones: usize) -> OrbPoint {
 }
 
 #[test]
-fn a_kept_point_gives_its_point_back_to_f32_precision() {
-    let o = OrbPoint {
-        px: Point2f::new(321.25, 17.5),
+fn a_packed_feature_gives_its_feature_back_to_f32_precision() {
+    let f = PlaceFeature {
+        px: Point2::new(321.25, 17.5),
         descriptor: [0xa5; 32],
-        p_camera: Measurement {
+        measurement: Measurement {
             p: Point3::new(-0.123_456_789, 0.5, 2.345_678_9),
             cov: Matrix3::new(1e-5, 2e-6, 3e-6, 2e-6, 4e-5, 5e-6, 3e-6, 5e-6, 9e-4),
         },
     };
-    let back = KeptPoint::new(&o).orb();
-    assert_eq!((back.px, back.descriptor), (o.px, o.descriptor));
-    assert!((back.p_camera.p - o.p_camera.p).norm() < 1e-6);
-    assert!((back.p_camera.cov - o.p_camera.cov).norm() < 1e-10);
-    assert_eq!(back.p_camera.cov, back.p_camera.cov.transpose());
+    let back = PackedFeature::new(&f).feature();
+    assert_eq!((back.px, back.descriptor), (f.px, f.descriptor));
+    assert!((back.measurement.p - f.measurement.p).norm() < 1e-6);
+    assert!((back.measurement.cov - f.measurement.cov).norm() < 1e-10);
+    assert_eq!(back.measurement.cov, back.measurement.cov.transpose());
+    // Through the matcher's point and back, nothing changes.
+    assert_eq!(PlaceFeature::from(&OrbPoint::from(back)), back);
 }
 
 #[test]

@@ -34,10 +34,10 @@ use crate::klt::Pyramid;
 use crate::motion::MotionParams;
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
-    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, KeptPoint,
-    OrbPoint, Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
+    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
+    Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
 };
-use crate::result::TrackingStatus;
+use crate::result::{PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
 use opencv::core::Point2f;
@@ -89,7 +89,7 @@ impl PlaceMemory {
     }
 
     fn insert(&mut self, kf: AnchorKeyframe) {
-        let descriptors: Vec<OrbDescriptor> = kf.points.iter().map(KeptPoint::descriptor).collect();
+        let descriptors: Vec<OrbDescriptor> = kf.points.iter().map(|p| p.descriptor).collect();
         self.database
             .add(kf.id, self.vocabulary.transform(&descriptors));
         self.keyframes.insert(kf.id, kf);
@@ -129,7 +129,10 @@ impl PlaceMemory {
         self.insert(AnchorKeyframe {
             id,
             world_from_camera: world_from_kf,
-            points: points.iter().map(KeptPoint::new).collect(),
+            points: points
+                .iter()
+                .map(|p| PackedFeature::new(&p.into()))
+                .collect(),
         });
         self.own.push_back(id);
         self.last_own = Some(world_from_kf);
@@ -143,16 +146,20 @@ impl PlaceMemory {
 
     /// The keyframes to try for `query`, most descriptor matches first (ties by identifier),
     /// with their match counts: the [`SHORTLIST`] best by bag of words, then the
-    /// [`RELOCALIZATION_CANDIDATES`] best of those by matches.
-    fn candidates(&self, query: &[OrbPoint]) -> Vec<(usize, &AnchorKeyframe)> {
+    /// [`RELOCALIZATION_CANDIDATES`] best of those by matches, each with its features as
+    /// the matcher takes them.
+    fn candidates(&self, query: &[OrbPoint]) -> Vec<(usize, &AnchorKeyframe, Vec<OrbPoint>)> {
         let descriptors: Vec<OrbDescriptor> = query.iter().map(|p| p.descriptor).collect();
         let bow = self.vocabulary.transform(&descriptors);
-        let mut ranked: Vec<(usize, &AnchorKeyframe)> = self
+        let mut ranked: Vec<(usize, &AnchorKeyframe, Vec<OrbPoint>)> = self
             .database
             .query(&bow, SHORTLIST, |_| true)
             .iter()
             .filter_map(|m| self.keyframes.get(&m.id))
-            .map(|kf| (match_points(query, &kf.orb_points()).len(), kf))
+            .map(|kf| {
+                let points = kf.orb_points();
+                (match_points(query, &points).len(), kf, points)
+            })
             .collect();
         ranked.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.id.cmp(&b.1.id)));
         ranked.truncate(RELOCALIZATION_CANDIDATES);
@@ -246,10 +253,10 @@ impl VisualOdometry {
         let mut best = None;
         let most_matches = {
             let ranked = self.places.candidates(&query);
-            for (_, a) in &ranked {
+            for (_, a, points) in &ranked {
                 let found = estimate_against(
                     &query,
-                    &a.orb_points(),
+                    points,
                     &a.world_from_camera,
                     &params,
                     config.refine_iterations,

@@ -83,6 +83,53 @@ pub struct PlaceFeature {
     pub measurement: Measurement,
 }
 
+/// A [`PlaceFeature`] in f32, as the places that hold many keep them (relocalization's
+/// remembered keyframes, loop closure, saved maps): 76 bytes instead of 136. The rounding
+/// (7 significant digits) is far below the depth's noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PackedFeature {
+    /// Pixel position (px, distorted image coordinates).
+    pub px: [f32; 2],
+    /// ORB descriptor.
+    pub descriptor: OrbDescriptor,
+    /// The point in the keyframe's camera frame (m).
+    pub p_camera_m: [f32; 3],
+    /// The upper triangle of its covariance, `[xx, xy, xz, yy, yz, zz]` (m^2).
+    pub cov_upper_m2: [f32; 6],
+}
+
+impl PackedFeature {
+    /// `f` rounded to f32.
+    pub fn new(f: &PlaceFeature) -> Self {
+        let (p, c) = (&f.measurement.p, &f.measurement.cov);
+        Self {
+            px: [f.px.x, f.px.y],
+            descriptor: f.descriptor,
+            p_camera_m: [p.x, p.y, p.z].map(|v| v as f32),
+            cov_upper_m2: [c.m11, c.m12, c.m13, c.m22, c.m23, c.m33].map(|v| v as f32),
+        }
+    }
+
+    /// The measurement back in f64 (the covariance symmetric).
+    pub fn measurement(&self) -> Measurement {
+        let [x, y, z] = self.p_camera_m.map(f64::from);
+        let [a, b, c, d, e, f] = self.cov_upper_m2.map(f64::from);
+        Measurement {
+            p: nalgebra::Point3::new(x, y, z),
+            cov: nalgebra::Matrix3::new(a, b, c, b, d, e, c, e, f),
+        }
+    }
+
+    /// The feature back in f64.
+    pub fn feature(&self) -> PlaceFeature {
+        PlaceFeature {
+            px: Point2::new(self.px[0], self.px[1]),
+            descriptor: self.descriptor,
+            measurement: self.measurement(),
+        }
+    }
+}
+
 /// The link of a keyframe to the one before it, as the odometry measured it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OdometryLink {
