@@ -1,6 +1,7 @@
 //! Maps that last: teddy_200's first 100 frames are mapped and saved; a second run over
 //! frames 100-200 loads the map, relocalizes its first frame in it, and goes on in the map's
-//! frame.
+//! frame; a run the map cannot place at first starts a piece of its own, joined to the map
+//! when it comes back over the mapped place.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
 
@@ -12,14 +13,20 @@ use stride_core::trajectory::Trajectory;
 use stride_datasets::trajectory_file::read_tum_trajectory;
 use stride_eval::ate;
 
-/// ATE RMSE (m) of two runs' trajectories together, under one SE(3) alignment with the
-/// ground truth: small only when both are in the same frame.
-fn joint_ate(gt: &Trajectory, a: &Trajectory, b: &Trajectory) -> f64 {
-    let (mut stamps, mut poses) = (a.stamps_s().to_vec(), a.poses().to_vec());
-    stamps.extend_from_slice(b.stamps_s());
-    poses.extend_from_slice(b.poses());
-    let joint = Trajectory::from_parts(stamps, poses).unwrap();
-    ate(gt, &joint, &stride::pipeline::slam_ate_options())
+/// ATE RMSE (m) of two runs' trajectories together, each against its own ground truth,
+/// under one SE(3) alignment: small only when both are in the same frame. The second run
+/// and its ground truth are moved 1,000 s on, so that the runs' stamps may overlap (a
+/// reordered sequence restarts the clock).
+fn joint_ate(a: (&Trajectory, &Trajectory), b: (&Trajectory, &Trajectory)) -> f64 {
+    let join = |x: &Trajectory, y: &Trajectory| {
+        let mut stamps = x.stamps_s().to_vec();
+        stamps.extend(y.stamps_s().iter().map(|t| t + 1000.0));
+        let mut poses = x.poses().to_vec();
+        poses.extend_from_slice(y.poses());
+        Trajectory::from_parts(stamps, poses).unwrap()
+    };
+    let (gt, est) = (join(a.0, b.0), join(a.1, b.1));
+    ate(&gt, &est, &stride::pipeline::slam_ate_options())
         .unwrap()
         .trans_m
         .rmse
@@ -84,14 +91,20 @@ fn a_second_run_localizes_in_a_saved_map_and_extends_it() {
     let single = run(&teddy, "single", &[]);
     let alone = run(&second, "alone", &[]);
     let gt = read_tum_trajectory(&teddy.join("groundtruth.txt")).unwrap();
-    let joint = joint_ate(&gt, &trajectory(&out("one")), &trajectory(&out("two")));
+    let joint = joint_ate(
+        (&gt, &trajectory(&out("one"))),
+        (&gt, &trajectory(&out("two"))),
+    );
     let single_ate = common::num(&single["ate"], "rmse");
     eprintln!("two runs under one alignment: {joint} m, the single run {single_ate} m");
     assert!(
         joint < 2.0 * single_ate,
         "both runs under one alignment {joint} m, the single run {single_ate} m"
     );
-    let apart = joint_ate(&gt, &trajectory(&out("one")), &trajectory(&out("alone")));
+    let apart = joint_ate(
+        (&gt, &trajectory(&out("one"))),
+        (&gt, &trajectory(&out("alone"))),
+    );
     assert!(
         apart > 10.0 * joint,
         "without the map {apart} m, with it {joint} m ({alone})"
@@ -166,22 +179,39 @@ fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
     assert_eq!(two["relocalizations"], 1, "{two}\n{log}");
     assert_eq!(two["frames_lost"], 0, "{two}");
     assert!(common::num(&two["ate"], "rmse") < 0.008, "{two}");
-    let out = tmp.path().join("three");
-    let o = common::run(&[
-        "run",
-        "--dataset",
-        later.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
+    // Nothing in the version-1 copy places that start: the run goes on in a piece of its
+    // own, started by a guess at the newest saved keyframe's pose, and says so.
+    let load_v1 = [
         "--camera",
         "fr3",
         "--no-map",
         "--load-map",
         old.to_str().unwrap(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{err}");
-    assert!(err.contains("not localized in the saved map"), "{err}");
+    ];
+    let three = common::run_report("run", &later, &tmp.path().join("three"), &load_v1);
+    assert_eq!(three["relocalizations"], 0, "{three}");
+    assert_eq!(three["frames_by_status"]["lost"], 1, "{three}");
+    assert_eq!(three["frames_in_saved_map"], 0, "{three}");
+
+    // A start that no saved keyframe places (frame 140: 15 inliers at most, even by
+    // OpenCV's ORB on the raw images), walking back over the mapped place: its piece,
+    // started by a guess, is joined to the map by the first loop with a saved keyframe.
+    // Measured (seeds 1-3): 4-5 loops, the first moving the piece 0.40 m and 22 degrees;
+    // both runs under one alignment 4.7-6.5 mm (the first run alone 4.1 mm).
+    let from_140: Vec<usize> = (0..=140).rev().collect();
+    let unplaced = tmp.path().join("from_140");
+    reordered(&teddy, &unplaced, &from_140);
+    let r = common::run_report("run", &unplaced, &tmp.path().join("six"), &load);
+    assert_eq!(r["frames_by_status"]["lost"], 1, "{r}");
+    assert_eq!(r["frames_in_saved_map"], r["frames"], "{r}");
+    assert!(r["loop_closures"].as_u64().unwrap() >= 1, "{r}");
+    let gt = |dir: &Path| read_tum_trajectory(&dir.join("groundtruth.txt")).unwrap();
+    let joint = joint_ate(
+        (&gt(&teddy), &trajectory(&tmp.path().join("one"))),
+        (&gt(&unplaced), &trajectory(&tmp.path().join("six"))),
+    );
+    eprintln!("a start the map cannot place, joined by loops: {joint} m under one alignment");
+    assert!(joint < 0.010, "{joint} m\n{r}");
 
     // A run that goes on from the map's end and then walks back over the mapped place
     // closes loops with the saved keyframes by their place features. Measured (seeds 1-3):

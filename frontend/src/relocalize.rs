@@ -37,7 +37,7 @@ use crate::recovery::{
     estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
     Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
 };
-use crate::result::{PackedFeature, TrackingStatus};
+use crate::result::{OdometryLink, PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
 use opencv::core::Point2f;
@@ -101,6 +101,24 @@ impl PlaceMemory {
         for a in anchors {
             self.insert(AnchorKeyframe::from(a));
         }
+    }
+
+    /// Where a run that its first frame could not place in the saved map starts: the
+    /// saved map's newest keyframe (a run often goes on where the last one ended), as a
+    /// predicted link to it (no information, no inliers) and its `world_from_camera`.
+    /// `None` without a saved map, or once this run has keyframes of its own.
+    pub(crate) fn guess_in_saved_map(&self) -> Option<(OdometryLink, Isometry3<f64>)> {
+        if !self.saved_map || !self.own.is_empty() {
+            return None;
+        }
+        let (&id, kf) = self.keyframes.last_key_value()?;
+        let link = OdometryLink {
+            previous_id: id,
+            previous_from_this: Isometry3::identity(),
+            information: nalgebra::Matrix6::zeros(),
+            inliers: 0,
+        };
+        Some((link, kf.world_from_camera))
     }
 
     /// Whether a keyframe at `world_from_kf` would be remembered: it is far enough from the

@@ -151,8 +151,11 @@ impl VisualOdometry {
         self.world_from_prev * self.motion_model.prev_from_cur(self.prev_t, t_s)
     }
 
-    /// The first frame: it defines the world, or, in a saved map, is relocalized in it
-    /// (an error when that fails; the next frame tries again).
+    /// The first frame: it defines the world, or, in a saved map, is relocalized in it.
+    /// When that fails, it is put at the newest saved keyframe's pose (status
+    /// [`TrackingStatus::Lost`]), its keyframe linked to that one by a predicted link
+    /// (no information): a piece of the map placed by a guess, which a back end's loop
+    /// closure joins to the saved map when one of its keyframes is recognised there.
     fn first_frame(
         &mut self,
         frame: &RgbdFrame,
@@ -164,16 +167,32 @@ impl VisualOdometry {
         let (mut status, mut world_from_cur) = (TrackingStatus::Initialized, Isometry3::identity());
         let (mut inliers, mut iterations, mut correspondences) = (0, 0, 0);
         let mut information = Matrix6::zeros();
-        let (mut measured, mut matched_keyframe) = (Vec::new(), None);
+        let (mut measured, mut matched_keyframe, mut guessed) = (Vec::new(), None, None);
         if self.places.saved_map {
             let t = Instant::now();
-            let r = self.relocalize(frame, pyr, gray_img)?;
+            match self.relocalize(frame, pyr, gray_img) {
+                Ok(r) => {
+                    status = TrackingStatus::Relocalized;
+                    world_from_cur = r.world_from_cur;
+                    (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
+                    (correspondences, matched_keyframe) = (r.matches, Some(r.matched_keyframe));
+                    (self.tracks, measured) = r.tracks.into_iter().unzip();
+                }
+                Err(e @ FrontendError::NotLocalized { .. }) => {
+                    let (link, world_from_guess) = self.places.guess_in_saved_map().ok_or(e)?;
+                    tracing::warn!(
+                        "frame {}: not found in the saved map; the run starts a piece of \
+                         its own at saved keyframe {}'s pose, joined to the map when a \
+                         keyframe of it is recognised there",
+                        frame.index,
+                        link.previous_id
+                    );
+                    (status, world_from_cur, guessed) =
+                        (TrackingStatus::Lost, world_from_guess, Some(link));
+                }
+                Err(e) => return Err(e),
+            }
             timing.recover_s = t.elapsed().as_secs_f64();
-            status = TrackingStatus::Relocalized;
-            world_from_cur = r.world_from_cur;
-            (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
-            (correspondences, matched_keyframe) = (r.matches, Some(r.matched_keyframe));
-            (self.tracks, measured) = r.tracks.into_iter().unzip();
         }
         self.world_from_prev = world_from_cur;
         self.motion_model.start(frame.t_s, world_from_cur);
@@ -183,7 +202,7 @@ impl VisualOdometry {
         timing.track_s = start.elapsed().as_secs_f64();
         let t = Instant::now();
         let tracked = self.tracks.len();
-        let info = self.start_keyframe(frame, pyr, gray_img, &world_from_cur, measured, None)?;
+        let info = self.start_keyframe(frame, pyr, gray_img, &world_from_cur, measured, guessed)?;
         timing.detect_s = t.elapsed().as_secs_f64();
         self.prev = Some(std::rc::Rc::clone(pyr));
         self.prev_t = frame.t_s;

@@ -284,6 +284,21 @@ pub fn run(a: RunArgs) -> Result<()> {
             "\n{n} segments: pieces of the trajectory placed relative to each other by a guess (lost frames no loop joined again)"
         );
     }
+    if let (Some(n), Some(all)) = (
+        j.get("frames_in_saved_map").and_then(Value::as_u64),
+        j.get("frames").and_then(Value::as_u64),
+    ) {
+        let _ = write!(
+            line,
+            "\n{n} of {all} frames placed in the saved map's world"
+        );
+        if n < all {
+            let _ = write!(
+                line,
+                " (the others in a piece started by a guess that no loop joined to the map)"
+            );
+        }
+    }
     // Map points and local optimizations exist only with a back end.
     if let (Some(kf), Some(_)) = (
         j.get("keyframes").and_then(Value::as_u64),

@@ -409,6 +409,11 @@ fn report_json(
     let segments = out.segments();
     m.insert("segments".into(), json!(segments.len()));
     m.insert("segment_frames".into(), json!(segments));
+    // In a saved map: the frames placed in its world (the others are in a piece the run
+    // started by a guess, when its first frame was not found in the map, that no loop
+    // joined to it).
+    let in_map = a.load_map.as_ref().map(|_| out.frames_in_world_piece());
+    m.insert("frames_in_saved_map".into(), json!(in_map));
     let g = out.gyroscope_frames;
     m.insert(
         "gyroscope_frames".into(),

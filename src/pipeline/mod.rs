@@ -58,7 +58,9 @@ pub struct PipelineConfig {
     pub world: WorldPlan,
     /// The elevation map; `None` for poses only.
     pub map: Option<TerrainConfig>,
-    /// A saved map to start in: the first frame is relocalized in it, the back end extends
+    /// A saved map to start in: the first frame is relocalized in it (or, when it cannot
+    /// be, put at the newest saved keyframe's pose by a guess, in a piece that loop closure
+    /// joins to the map later: [`RunOutput::frames_in_world_piece`]), the back end extends
     /// it, and its world replaces `world`. `None` starts a new map at the first frame.
     pub saved_map: Option<SavedMap>,
 }

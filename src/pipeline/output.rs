@@ -184,14 +184,49 @@ impl RunOutput {
     /// back end's local matching ties to an earlier one without a loop is still counted
     /// apart.)
     pub fn segments(&self) -> Vec<usize> {
+        let mut sizes = vec![0usize; self.frames.len() + 1];
+        for p in self.pieces() {
+            if let Some(n) = sizes.get_mut(p) {
+                *n += 1;
+            }
+        }
+        sizes.retain(|&n| n > 0);
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        sizes
+    }
+
+    /// The frames in the piece that holds the world's origin: the first frame's or, in a
+    /// saved map, the saved map's (its keyframes, numbered before the run's, form that
+    /// piece). In a saved map, the frames placed in the map's world; the others sit in a
+    /// piece placed by a guess that no loop joined to the map (see [`Self::segments`]).
+    pub fn frames_in_world_piece(&self) -> usize {
+        self.pieces().iter().filter(|&&p| p == 0).count()
+    }
+
+    /// The piece of every frame (see [`Self::segments`]), numbered by its earliest member:
+    /// 0 holds the first frame or, when the run started in a saved map, the map's
+    /// keyframes (identifiers below the run's first keyframe).
+    fn pieces(&self) -> Vec<usize> {
         fn root(parent: &[usize], mut i: usize) -> usize {
             while let Some(&p) = parent.get(i).filter(|&&p| p != i) {
                 i = p;
             }
             i
         }
+        let first_own = self
+            .frames
+            .iter()
+            .filter(|f| f.keyframe)
+            .map(|f| f.keyframe_id)
+            .min();
         let mut parent = vec![0usize];
         let mut segment_of_keyframe = std::collections::HashMap::new();
+        // A keyframe this run did not make, numbered before its own: a saved map's.
+        let piece_of = |map: &std::collections::HashMap<u64, usize>, k: u64| {
+            map.get(&k)
+                .copied()
+                .or_else(|| first_own.filter(|&f| k < f).map(|_| 0))
+        };
         let mut segment_of_frame = Vec::with_capacity(self.frames.len());
         let join = |parent: &mut Vec<usize>, a: usize, b: usize| {
             let (ra, rb) = (root(parent, a), root(parent, b));
@@ -204,7 +239,10 @@ impl RunOutput {
                 parent.push(parent.len());
             }
             let current = parent.len() - 1;
-            if let Some(&s) = f.matched_keyframe.and_then(|k| segment_of_keyframe.get(&k)) {
+            if let Some(s) = f
+                .matched_keyframe
+                .and_then(|k| piece_of(&segment_of_keyframe, k))
+            {
                 join(&mut parent, current, s);
             }
             if f.keyframe {
@@ -214,22 +252,17 @@ impl RunOutput {
         }
         for k in self.backend.iter().flat_map(|b| &b.keyframes) {
             let Some(l) = &k.loop_closure else { continue };
-            if let (Some(&a), Some(&b)) = (
-                segment_of_keyframe.get(&k.keyframe_id),
-                segment_of_keyframe.get(&l.matched),
+            if let (Some(a), Some(b)) = (
+                piece_of(&segment_of_keyframe, k.keyframe_id),
+                piece_of(&segment_of_keyframe, l.matched),
             ) {
                 join(&mut parent, a, b);
             }
         }
-        let mut sizes = vec![0usize; parent.len()];
-        for s in segment_of_frame {
-            if let Some(n) = sizes.get_mut(root(&parent, s)) {
-                *n += 1;
-            }
-        }
-        sizes.retain(|&n| n > 0);
-        sizes.sort_unstable_by(|a, b| b.cmp(a));
-        sizes
+        segment_of_frame
+            .into_iter()
+            .map(|s| root(&parent, s))
+            .collect()
     }
 
     /// The final `world_from_camera` of every frame (the live poses without a back end).
