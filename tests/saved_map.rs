@@ -181,17 +181,28 @@ fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
     assert!(common::num(&two["ate"], "rmse") < 0.008, "{two}");
     // Nothing in the version-1 copy places that start: the run goes on in a piece of its
     // own, started by a guess at the newest saved keyframe's pose, and says so.
-    let load_v1 = [
-        "--camera",
-        "fr3",
-        "--no-map",
-        "--load-map",
-        old.to_str().unwrap(),
-    ];
-    let three = common::run_report("run", &later, &tmp.path().join("three"), &load_v1);
+    // Saved again, the map leaves that piece out and keeps its own keyframes and points:
+    // the piece matched only its own points (the map around the guessed pose is not what
+    // the camera saw), so none of the map's was counted unseen and culled. Measured: 29
+    // keyframes, 541 of 607 points (the 66 seen by one keyframe go in any run in the map);
+    // a run from frame 140 on, matching the map around the guess, left 365.
+    let again = tmp.path().join("again.map.json");
+    let (old_arg, again_arg) = (old.to_str().unwrap(), again.to_str().unwrap());
+    let load_v1 = ["--camera", "fr3", "--no-map", "--load-map", old_arg];
+    let save_again = [&load_v1[..], &["--save-map", again_arg]].concat();
+    let three = common::run_report("run", &later, &tmp.path().join("three"), &save_again);
     assert_eq!(three["relocalizations"], 0, "{three}");
     assert_eq!(three["frames_by_status"]["lost"], 1, "{three}");
     assert_eq!(three["frames_in_saved_map"], 0, "{three}");
+    let ids = |v: &serde_json::Value, what: &str| -> Vec<u64> {
+        let list = v[what].as_array().unwrap();
+        list.iter().map(|k| k["id"].as_u64().unwrap()).collect()
+    };
+    let again: serde_json::Value = serde_json::from_slice(&std::fs::read(&again).unwrap()).unwrap();
+    assert_eq!(ids(&again, "keyframes"), ids(&v, "keyframes"));
+    let (kept, had) = (ids(&again, "points").len(), ids(&v, "points").len());
+    eprintln!("saved again after a piece never joined: {kept} of {had} points");
+    assert!(10 * kept > 8 * had, "{kept} of {had} points");
 
     // A start that no saved keyframe places (frame 140: 15 inliers at most, even by
     // OpenCV's ORB on the raw images), walking back over the mapped place: its piece,

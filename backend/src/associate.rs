@@ -74,8 +74,18 @@ impl Backend {
     }
 
     /// The keyframes whose points are matched into keyframe `id`: the previous keyframe's
-    /// covisible ones, and those near the predicted pose.
+    /// covisible ones, and those near the predicted pose; only those of its own piece in a
+    /// run that started in a saved map by a guess (`Backend::guessed_start`).
     fn local_map(&self, id: KeyframeId, previous: Option<KeyframeId>) -> BTreeSet<KeyframeId> {
+        let mut set = self.local_map_all(id, previous);
+        if let Some(start) = self.guessed_start.filter(|&s| id >= s) {
+            set.retain(|&k| k >= start);
+        }
+        set
+    }
+
+    /// [`Self::local_map`] wherever the keyframe is.
+    fn local_map_all(&self, id: KeyframeId, previous: Option<KeyframeId>) -> BTreeSet<KeyframeId> {
         let mut set = BTreeSet::new();
         if let Some(prev) = previous.and_then(|p| self.map.keyframe(p)) {
             set.insert(prev.id);

@@ -124,6 +124,12 @@ pub struct Backend {
     /// was last whole: the keyframes from it on sit where a guess put them until loop
     /// closure ties one of them to an older keyframe (then `None`).
     pub(crate) unjoined_from: Option<KeyframeId>,
+    /// The first keyframe of a run in a saved map whose first frame the map could not
+    /// place (the odometry put it at a saved keyframe's pose by a guess), until a loop joins
+    /// its piece to the map: the keyframes from it on match only their own piece's points,
+    /// since the map around the guessed pose is not what the camera sees (matching it would
+    /// count its points as unseen, and culling would take them).
+    pub(crate) guessed_start: Option<KeyframeId>,
     /// Every keyframe placed by a prediction: each starts a piece of the map.
     pub(crate) piece_starts: std::collections::BTreeSet<KeyframeId>,
     /// The newest keyframe tied to an old place by a revisit link or a loop.
@@ -232,6 +238,7 @@ impl Backend {
             places,
             revisits: crate::revisit::Revisits::new(&camera),
             unjoined_from: None,
+            guessed_start: None,
             piece_starts: std::collections::BTreeSet::new(),
             last_tied: None,
             camera,
@@ -308,6 +315,9 @@ impl Backend {
         }) {
             self.unjoined_from.get_or_insert(id);
             self.piece_starts.insert(id);
+            if self.newest.is_none() {
+                self.guessed_start = Some(id);
+            }
         }
         let predicted = odometry
             .as_ref()

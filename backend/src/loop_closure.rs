@@ -260,6 +260,7 @@ impl Backend {
                 }
             }
             self.unjoined_from = None;
+            self.guessed_start = None;
         }
         let step = before.inverse() * verified.world_from_new;
         // The loop stays as an edge, and the keyframe's features are matched again against

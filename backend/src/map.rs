@@ -443,6 +443,34 @@ impl Map {
         dropped
     }
 
+    /// Removes the keyframes `ids` outright (not culled: nothing is kept relative to them),
+    /// with their observations; points left without one go too, and a remaining keyframe's
+    /// odometry edge to a removed one is dropped. Returns the points removed. For a map
+    /// to be saved without the pieces of a run that were placed only by a guess.
+    pub fn remove_keyframes(&mut self, ids: &std::collections::BTreeSet<KeyframeId>) -> usize {
+        let before = self.points.len();
+        for &id in ids {
+            let points: Vec<PointId> = self
+                .keyframes
+                .get(&id)
+                .map(|kf| kf.points().collect())
+                .unwrap_or_default();
+            for p in points {
+                self.remove_observation(p, id);
+            }
+            self.keyframes.remove(&id);
+        }
+        for k in self.keyframes.values_mut() {
+            if k.odometry
+                .as_ref()
+                .is_some_and(|e| ids.contains(&e.previous))
+            {
+                k.odometry = None;
+            }
+        }
+        before.saturating_sub(self.points.len())
+    }
+
     /// Removes a keyframe and its observations; frames that refer to it keep their pose
     /// relative to `parent` (which must exist).
     pub fn cull_keyframe(&mut self, id: KeyframeId, parent: KeyframeId) -> bool {

@@ -162,3 +162,32 @@ fn dropping_unmapped_features_renumbers_observations() {
     assert_eq!(map.drop_unmapped_features(0), 0);
     assert_eq!(map.drop_unmapped_features(7), 0, "unknown keyframe");
 }
+
+#[test]
+fn removed_keyframes_take_their_own_points_and_links_with_them() {
+    let mut map = Map::new();
+    for k in 0..4 {
+        let mut kf = keyframe(k, 0.2 * k as f64, 4);
+        kf.odometry = (k > 0).then(|| OdometryEdge {
+            previous: k - 1,
+            previous_from_this: Isometry3::identity(),
+            information: Matrix6::identity(),
+            active: false,
+        });
+        map.insert_keyframe(kf);
+    }
+    // Point `shared` is seen by keyframes 1 and 2; `own` by keyframe 2 alone.
+    let shared = map.create_point(1, 0).unwrap();
+    map.add_observation(shared, 2, 0);
+    let own = map.create_point(2, 1).unwrap();
+    let kept = map.create_point(0, 0).unwrap();
+    let removed = map.remove_keyframes(&[2].into_iter().collect());
+    check(&map);
+    assert_eq!(removed, 1, "only the point nothing else sees");
+    assert!(map.keyframe(2).is_none() && map.point(own).is_none());
+    assert_eq!(map.point(shared).unwrap().observations.len(), 1);
+    assert!(map.point(kept).is_some());
+    assert!(map.keyframe(1).unwrap().covisibility.is_empty());
+    assert!(map.keyframe(3).unwrap().odometry.is_none(), "its link went");
+    assert!(map.keyframe(1).unwrap().odometry.is_some());
+}

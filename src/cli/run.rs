@@ -270,6 +270,51 @@ impl RunArgs {
     }
 }
 
+/// Writes the run's final map to `path`, in the run's world (described as `world_origin`
+/// when the run started in a saved map). The keyframes of pieces placed only by a guess
+/// relative to the world's origin ([`stride::pipeline::RunOutput::keyframes_outside_world_piece`])
+/// are left out, with their own points: the map's frame would hold them where the guess put
+/// them.
+fn save_map(
+    path: &std::path::Path,
+    out: &mut stride::pipeline::RunOutput,
+    camera: stride_core::camera::PinholeCamera,
+    world_origin: Option<String>,
+) -> Result<()> {
+    let outside = out.keyframes_outside_world_piece();
+    let world = out.world;
+    let Some(b) = out.backend.as_mut() else {
+        anyhow::bail!("--save-map needs a back end (the odometry alone keeps no map)");
+    };
+    let mut map = std::mem::take(&mut b.map);
+    let mut place_features = std::mem::take(&mut b.place_features);
+    if !outside.is_empty() {
+        let points = map.remove_keyframes(&outside);
+        place_features.retain(|k, _| !outside.contains(k));
+        tracing::warn!(
+            "{}: {} keyframes and {points} points left out, placed only by a guess relative to the map (a piece after a lost frame, or a start not found in the saved map, that no loop joined)",
+            path.display(),
+            outside.len()
+        );
+    }
+    let saved = SavedMap {
+        camera,
+        map,
+        world_from_map: world.world_from_slam,
+        world: world_origin.unwrap_or_else(|| world.describe()),
+        gravity_aligned: world.is_gravity_aligned(),
+        place_features,
+    };
+    saved.save(path)?;
+    tracing::info!(
+        "map saved to {}: {} keyframes, {} points",
+        path.display(),
+        saved.map.keyframes().len(),
+        saved.map.points().len()
+    );
+    Ok(())
+}
+
 pub fn run(a: RunArgs) -> Result<()> {
     let summary = execute(&a)?;
     let j = &summary.json;
@@ -382,34 +427,11 @@ pub fn execute(a: &RunArgs) -> Result<RunSummary> {
     }
     let total = a.max_frames.map_or(seq.len(), |m| m.min(seq.len()));
     let pb = crate::cli::progress_bar(total, "tracking", true);
-    let mut out = run_sequence(&seq, pipeline, a.max_frames, |_| pb.inc(1))?;
+    let out = run_sequence(&seq, pipeline, a.max_frames, |_| pb.inc(1))?;
     pb.finish_and_clear();
-    let to_save = match (&a.save_map, out.run.backend.as_mut()) {
-        (Some(path), Some(b)) => Some((
-            path,
-            std::mem::take(&mut b.map),
-            std::mem::take(&mut b.place_features),
-            out.run.world,
-        )),
-        _ => None,
-    };
-    let summary = super::run_files::write_run(a, &config, &seq, out)?;
-    if let Some((path, map, place_features, world)) = to_save {
-        let saved = SavedMap {
-            camera: seq.camera().camera,
-            map,
-            world_from_map: world.world_from_slam,
-            world: world_origin.unwrap_or_else(|| world.describe()),
-            gravity_aligned: world.is_gravity_aligned(),
-            place_features,
-        };
-        saved.save(path)?;
-        tracing::info!(
-            "map saved to {}: {} keyframes, {} points",
-            path.display(),
-            saved.map.keyframes().len(),
-            saved.map.points().len()
-        );
+    let mut summary = super::run_files::write_run(a, &config, &seq, out)?;
+    if let Some(path) = &a.save_map {
+        save_map(path, &mut summary.output, seq.camera().camera, world_origin)?;
     }
     Ok(summary)
 }

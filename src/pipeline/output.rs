@@ -179,13 +179,13 @@ impl RunOutput {
     /// The sizes (frames) of the pieces of the run whose placement relative to one another
     /// rests only on a guess, largest first. A lost frame (its pose predicted by constant
     /// velocity) starts a new piece; two pieces join when a frame of the later one is
-    /// recovered or relocalized against a keyframe of the earlier one, or the back end
-    /// closes a loop between their keyframes. One piece for a run never lost. (A piece the
-    /// back end's local matching ties to an earlier one without a loop is still counted
-    /// apart.)
+    /// recovered or relocalized against a keyframe of the earlier one, the back end
+    /// closes a loop between their keyframes, or two of their keyframes share as many
+    /// points in the final map as make a loop candidate connected
+    /// ([`stride_backend::LoopParams::connected_points`]). One piece for a run never lost.
     pub fn segments(&self) -> Vec<usize> {
         let mut sizes = vec![0usize; self.frames.len() + 1];
-        for p in self.pieces() {
+        for p in self.pieces().0 {
             if let Some(n) = sizes.get_mut(p) {
                 *n += 1;
             }
@@ -200,13 +200,22 @@ impl RunOutput {
     /// piece). In a saved map, the frames placed in the map's world; the others sit in a
     /// piece placed by a guess that no loop joined to the map (see [`Self::segments`]).
     pub fn frames_in_world_piece(&self) -> usize {
-        self.pieces().iter().filter(|&&p| p == 0).count()
+        self.pieces().0.iter().filter(|&&p| p == 0).count()
+    }
+
+    /// The final map's keyframes outside the piece that holds the world's origin (see
+    /// [`Self::frames_in_world_piece`]): placed only by a guess relative to it, they are
+    /// left out of a saved map, whose frame would otherwise hold them where the guess put
+    /// them. Empty without a back end.
+    pub fn keyframes_outside_world_piece(&self) -> std::collections::BTreeSet<u64> {
+        self.pieces().1
     }
 
     /// The piece of every frame (see [`Self::segments`]), numbered by its earliest member:
     /// 0 holds the first frame or, when the run started in a saved map, the map's
-    /// keyframes (identifiers below the run's first keyframe).
-    fn pieces(&self) -> Vec<usize> {
+    /// keyframes (identifiers below the run's first keyframe); and the final map's
+    /// keyframes outside piece 0.
+    fn pieces(&self) -> (Vec<usize>, std::collections::BTreeSet<u64>) {
         fn root(parent: &[usize], mut i: usize) -> usize {
             while let Some(&p) = parent.get(i).filter(|&&p| p != i) {
                 i = p;
@@ -250,19 +259,39 @@ impl RunOutput {
             }
             segment_of_frame.push(current);
         }
-        for k in self.backend.iter().flat_map(|b| &b.keyframes) {
-            let Some(l) = &k.loop_closure else { continue };
+        // Loops, and keyframes the final map ties by shared points.
+        let mut ties = Vec::new();
+        if let Some(b) = &self.backend {
+            for k in &b.keyframes {
+                if let Some(l) = &k.loop_closure {
+                    ties.push((k.keyframe_id, l.matched));
+                }
+            }
+            let min_shared = b.config.loop_closure.connected_points.max(1);
+            for (&id, kf) in b.map.keyframes() {
+                ties.extend(kf.covisible(min_shared).into_iter().map(|(o, _)| (id, o)));
+            }
+        }
+        for (a, b) in ties {
             if let (Some(a), Some(b)) = (
-                piece_of(&segment_of_keyframe, k.keyframe_id),
-                piece_of(&segment_of_keyframe, l.matched),
+                piece_of(&segment_of_keyframe, a),
+                piece_of(&segment_of_keyframe, b),
             ) {
                 join(&mut parent, a, b);
             }
         }
-        segment_of_frame
+        let outside = self
+            .backend
+            .iter()
+            .flat_map(|b| b.map.keyframes().keys())
+            .filter(|&&k| piece_of(&segment_of_keyframe, k).is_some_and(|p| root(&parent, p) != 0))
+            .copied()
+            .collect();
+        let frames = segment_of_frame
             .into_iter()
             .map(|s| root(&parent, s))
-            .collect()
+            .collect();
+        (frames, outside)
     }
 
     /// The final `world_from_camera` of every frame (the live poses without a back end).
