@@ -136,6 +136,13 @@ pub struct Backend {
     pub(crate) last_tied: Option<KeyframeId>,
 }
 
+/// Standard deviations (m, rad) of the link that holds a run started in a saved map by a
+/// guess (its first frame not found there; see `Backend::guessed_start`): the guess may be
+/// metres and tens of degrees off, so the link only fixes the piece's gauge and gives way to
+/// whatever joins the piece to the map. A lost frame's link, a motion model's prediction
+/// over a short gap, has `predicted_link_sigma`.
+const GUESSED_START_SIGMA: (f64, f64) = (100.0, 10.0);
+
 /// Whether an information matrix can weigh an edge: finite and positive definite.
 fn usable_information(info: &Matrix6<f64>) -> bool {
     info.iter().all(|v| v.is_finite()) && info.cholesky().is_some()
@@ -291,6 +298,22 @@ impl Backend {
         if !is_finite(&input.world_from_camera) {
             return Err(bad("its pose is not finite".into()));
         }
+        // A link without information is a predicted pose: a new piece of the map starts.
+        let predicted_link = input.info.odometry.as_ref().is_some_and(|l| {
+            !usable_information(&tangent_information(
+                &input.world_from_camera,
+                &l.information,
+            ))
+        });
+        // The first keyframe of a run in a saved map that the map could not place: put at
+        // a saved keyframe's pose with nothing to go on, its link only holds the piece's
+        // gauge until a loop joins it.
+        let guessed_start = predicted_link && self.newest.is_none();
+        let sigma = if guessed_start {
+            GUESSED_START_SIGMA
+        } else {
+            self.config.predicted_link_sigma
+        };
         // 1. The odometry's link, to the previous keyframe or, when that one was culled, to
         // the keyframe it is kept relative to; the pose predicted through it.
         let odometry = input.info.odometry.as_ref().and_then(|l| {
@@ -298,24 +321,14 @@ impl Backend {
             Some(OdometryEdge {
                 previous,
                 previous_from_this: live_from_previous * l.previous_from_this,
-                information: odometry_information(
-                    &input.world_from_camera,
-                    &l.information,
-                    self.config.predicted_link_sigma,
-                ),
+                information: odometry_information(&input.world_from_camera, &l.information, sigma),
                 active: false,
             })
         });
-        // A link without information is a predicted pose: a new piece of the map starts.
-        if input.info.odometry.as_ref().is_some_and(|l| {
-            !usable_information(&tangent_information(
-                &input.world_from_camera,
-                &l.information,
-            ))
-        }) {
+        if predicted_link {
             self.unjoined_from.get_or_insert(id);
             self.piece_starts.insert(id);
-            if self.newest.is_none() {
+            if guessed_start {
                 self.guessed_start = Some(id);
             }
         }
