@@ -268,4 +268,49 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
         "jump_to_105",
         &(140..=150).chain((0..=105).rev()).collect::<Vec<_>>(),
     );
+
+    // A jump to frame 60 that tracking loses: relocalized in the map (412 inliers), the run
+    // goes on there, but nothing ties its 11 frames before the jump to it and no loop comes
+    // back to them: they stay apart, and the map saved again leaves their keyframes out.
+    let seq = tmp.path().join("jump_to_60");
+    reordered(
+        &teddy,
+        &seq,
+        &(140..=150).chain((0..=60).rev()).collect::<Vec<_>>(),
+    );
+    let again = tmp.path().join("again.map.json");
+    let args = [
+        "--camera",
+        "fr3",
+        "--no-map",
+        "--load-map",
+        map_arg,
+        "--save-map",
+    ];
+    let args = [&args[..], &[again.to_str().unwrap()]].concat();
+    let r = common::run_report("run", &seq, &tmp.path().join("jump_to_60_out"), &args);
+    assert_eq!(r["frames_by_status"]["relocalized"], 1, "{r}");
+    assert_eq!(r["frames_in_saved_map"], 61, "{r}");
+    assert_eq!(r["segment_frames"], serde_json::json!([61, 11]), "{r}");
+    let keyframes = |p: &Path| -> Vec<(u64, u64)> {
+        let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap();
+        let list = v["keyframes"].as_array().unwrap().iter();
+        list.map(|k| {
+            (
+                k["id"].as_u64().unwrap(),
+                k["frame_index"].as_u64().unwrap(),
+            )
+        })
+        .collect()
+    };
+    let newest_saved = keyframes(&map).iter().map(|k| k.0).max().unwrap();
+    let added: Vec<u64> = keyframes(&again)
+        .into_iter()
+        .filter(|k| k.0 > newest_saved)
+        .map(|k| k.1)
+        .collect();
+    assert!(
+        !added.is_empty() && added.iter().all(|&f| f >= 11),
+        "{added:?}"
+    );
 }

@@ -331,6 +331,11 @@ impl Backend {
             if guessed_start {
                 self.guessed_start = Some(id);
             }
+        } else if let (Some(start), Some(e)) = (self.guessed_start, &odometry) {
+            // Relocalized against a keyframe before the guessed start: in the map again.
+            if e.previous < start {
+                self.guessed_start = None;
+            }
         }
         let predicted = odometry
             .as_ref()

@@ -178,10 +178,11 @@ impl RunOutput {
 
     /// The sizes (frames) of the pieces of the run whose placement relative to one another
     /// rests only on a guess, largest first. A lost frame (its pose predicted by constant
-    /// velocity) starts a new piece; two pieces join when a frame of the later one is
-    /// recovered or relocalized against a keyframe of the earlier one, the back end
-    /// closes a loop between their keyframes, or two of their keyframes share as many
-    /// points in the final map as make a loop candidate connected
+    /// velocity) starts a new piece, and so does a relocalized one (placed against the
+    /// keyframe it was found against, not the frames before it); two pieces join when a
+    /// frame of the later one is recovered or relocalized against a keyframe of the
+    /// earlier one, the back end closes a loop between their keyframes, or two of their
+    /// keyframes share as many points in the final map as make a loop candidate connected
     /// ([`stride_backend::LoopParams::connected_points`]). One piece for a run never lost.
     pub fn segments(&self) -> Vec<usize> {
         let mut sizes = vec![0usize; self.frames.len() + 1];
@@ -244,7 +245,10 @@ impl RunOutput {
             }
         };
         for f in &self.frames {
-            if f.status == FrameStatus::Lost {
+            // A relocalized frame is placed against the keyframe it was found against, not
+            // the frames before it (its keyframe's link goes there): it starts a piece,
+            // joined below to that keyframe's.
+            if matches!(f.status, FrameStatus::Lost | FrameStatus::Relocalized) {
                 parent.push(parent.len());
             }
             let current = parent.len() - 1;
