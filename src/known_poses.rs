@@ -211,6 +211,6 @@ pub fn views_map(
         terrain.set_poses(&[(id, pose)]);
         terrain.update()?;
     }
-    let (layers, _) = terrain.finish(|_| None)?;
+    let (layers, _) = terrain.finish(|_| None, |_| false)?;
     Ok((layers, outside))
 }

@@ -271,27 +271,34 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
 
     // A jump to frame 60 that tracking loses: relocalized in the map (412 inliers), the run
     // goes on there, but nothing ties its 11 frames before the jump to it and no loop comes
-    // back to them: they stay apart, and the map saved again leaves their keyframes out.
+    // back to them: they stay apart, their views stay out of the elevation map, and the
+    // map saved again leaves their keyframes out. Measured: the floor's residual 16.4 mm
+    // and tilt 0.29 degree; with their views in it, 33.4 mm and 1.87 degrees.
     let seq = tmp.path().join("jump_to_60");
-    reordered(
-        &teddy,
-        &seq,
-        &(140..=150).chain((0..=60).rev()).collect::<Vec<_>>(),
-    );
+    let order: Vec<usize> = (140..=150).chain((0..=60).rev()).collect();
+    reordered(&teddy, &seq, &order);
     let again = tmp.path().join("again.map.json");
+    let again_arg = again.to_str().unwrap();
     let args = [
         "--camera",
         "fr3",
-        "--no-map",
         "--load-map",
         map_arg,
         "--save-map",
+        again_arg,
     ];
-    let args = [&args[..], &[again.to_str().unwrap()]].concat();
     let r = common::run_report("run", &seq, &tmp.path().join("jump_to_60_out"), &args);
     assert_eq!(r["frames_by_status"]["relocalized"], 1, "{r}");
     assert_eq!(r["frames_in_saved_map"], 61, "{r}");
     assert_eq!(r["segment_frames"], serde_json::json!([61, 11]), "{r}");
+    assert!(
+        r["map"]["views_left_out"].as_u64().unwrap() >= 1,
+        "{}",
+        r["map"]
+    );
+    let floor = &r["map"]["floor"];
+    assert!(common::num(floor, "residual_std_m") < 0.025, "{floor}");
+    assert!(common::num(floor, "tilt_deg") < 1.0, "{floor}");
     let keyframes = |p: &Path| -> Vec<(u64, u64)> {
         let v: serde_json::Value = serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap();
         let list = v["keyframes"].as_array().unwrap().iter();

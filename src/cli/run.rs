@@ -381,6 +381,13 @@ pub fn run(a: RunArgs) -> Result<()> {
                     s.coverage
                 ))
         );
+        if m.stats.views_left_out > 0 {
+            let _ = write!(
+                line,
+                "; {} views left out (the start the saved map never placed)",
+                m.stats.views_left_out
+            );
+        }
     }
     crate::outln!("{line}")?;
     crate::outln!("written to {}", a.out.display())?;

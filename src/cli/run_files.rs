@@ -192,6 +192,7 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
         "views_mapped": s.views_mapped,
         "views_settled": s.views_settled,
         "views_unmapped": s.views_unmapped,
+        "views_left_out": s.views_left_out,
         "rebuilds": s.rebuilds,
         "update_ms": ms_json(s.update_s.iter().map(|t| t * 1e3)),
         "rebuild_ms": ms_json(s.rebuild_s.iter().map(|t| t * 1e3)),

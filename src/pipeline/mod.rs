@@ -262,7 +262,9 @@ impl Pipeline {
             }
             Some(t) => {
                 let start = Instant::now();
-                let (layers, stats) = t.finish(&run.final_poses())?;
+                // Not the views of a start in a saved map that nothing joined to it: their
+                // terrain would lie where a guess at a saved keyframe's pose put it.
+                let (layers, stats) = t.finish(&run.final_poses(), &run.in_guessed_start())?;
                 Some(MapOutput {
                     layers,
                     stats,

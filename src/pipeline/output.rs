@@ -204,6 +204,27 @@ impl RunOutput {
         self.pieces().0.iter().filter(|&&p| p == 0).count()
     }
 
+    /// Per frame, whether it is in the piece a run in a saved map started by a guess, at a
+    /// saved keyframe's pose (its first frame not found in the map), and that nothing joined
+    /// to the map: poses that may be metres off, unlike those of a piece after a lost frame,
+    /// which the motion model predicted over the gap. All false otherwise.
+    pub fn in_guessed_start(&self) -> Vec<bool> {
+        let pieces = self.pieces().0;
+        let first = self
+            .frames
+            .iter()
+            .position(|f| f.status != FrameStatus::Skipped);
+        let guessed = first
+            .filter(|&i| {
+                self.frames
+                    .get(i)
+                    .is_some_and(|f| f.status == FrameStatus::Lost)
+            })
+            .and_then(|i| pieces.get(i).copied())
+            .filter(|&p| p != 0);
+        pieces.iter().map(|&p| Some(p) == guessed).collect()
+    }
+
     /// The final map's keyframes outside the piece that holds the world's origin (see
     /// [`Self::frames_in_world_piece`]): placed only by a guess relative to it, they are
     /// left out of a saved map, whose frame would otherwise hold them where the guess put

@@ -171,6 +171,9 @@ pub struct TerrainStats {
     /// Views dropped before they could be mapped (no pose or no world frame by the time
     /// they had to leave the store).
     pub views_unmapped: usize,
+    /// Views of the store left out of the final map: their frames have no final pose in
+    /// the world (a piece placed by a guess that nothing joined to it).
+    pub views_left_out: usize,
     /// Depth measurements integrated into the live map, rebuilds included.
     pub points_used: usize,
     /// Measurements dropped because their column had too many distinct voxels in one frame
@@ -505,24 +508,32 @@ impl Terrain {
     }
 
     /// The final map: the kept views at their frames' final `world_from_camera` in the
-    /// final world (`final_pose` of a frame position), rebuilt if any moved beyond the
-    /// thresholds, then aligned again against the map of all of them
+    /// final world (`final_pose` of a frame position; where a frame has none its view stays
+    /// where it was mapped), without the views whose frames are `left_out`, rebuilt if any
+    /// moved beyond the thresholds or left, then aligned again against the map of all of them
     /// ([`TerrainConfig::final_alignment_passes`]). The settled part stays where it was
     /// mapped.
     pub fn finish(
         mut self,
         final_pose: impl Fn(usize) -> Option<Isometry3<f64>>,
+        left_out: impl Fn(usize) -> bool,
     ) -> Result<(MapLayers, TerrainStats), PipelineError> {
-        let now: Vec<_> = self.stored.iter().map(|s| final_pose(s.frame)).collect();
+        // A view without a final pose stays where it was mapped; one left out leaves.
+        let now: Vec<_> = self
+            .stored
+            .iter()
+            .map(|s| (!left_out(s.frame)).then(|| final_pose(s.frame).or(s.mapped_at))?)
+            .collect();
         let moved = self
             .stored
             .iter()
             .zip(&now)
             .any(|(s, now)| match (s.mapped_at, now) {
                 (Some(at), Some(now)) => self.moved(&at, now),
-                (None, Some(_)) => true,
+                (None, Some(_)) | (Some(_), None) => true,
                 _ => false,
             });
+        self.stats.views_left_out = now.iter().filter(|p| p.is_none()).count();
         if moved {
             self.rebuild(&now)?;
         }

@@ -93,7 +93,7 @@ fn a_keyframe_the_back_end_moves_moves_its_terrain_with_it() {
     t.update().unwrap();
     assert_eq!(t.stats().rebuilds, 1);
     // The final poses rebuild it once more when they moved.
-    let (layers, stats) = t.finish(|_| Some(looking_down(0.98))).unwrap();
+    let (layers, stats) = t.finish(|_| Some(looking_down(0.98)), |_| false).unwrap();
     assert_eq!(stats.rebuilds, 2);
     let known: Vec<f32> = layers
         .elevation
@@ -224,7 +224,9 @@ fn the_final_alignment_takes_the_tilt_errors_of_views_out_of_a_flat_floor() {
             t.set_poses(&[(i as u64, pose(i))]);
             t.update().unwrap();
         }
-        let (layers, stats) = t.finish(|frame| Some(pose(frame / VIEWS))).unwrap();
+        let (layers, stats) = t
+            .finish(|frame| Some(pose(frame / VIEWS)), |_| false)
+            .unwrap();
         assert_eq!(stats.final_alignment.len(), passes);
         let fit = stride_mapping::metrics::floor_fit(&layers.elevation, 0.05).unwrap();
         (fit.residual_std_m, stats.final_alignment)

@@ -189,10 +189,12 @@ impl TerrainThread {
     }
 
     /// Waits for every request, then makes the final map at `final_poses` (world frame, one
-    /// per frame position) on the caller's thread.
+    /// per frame position), without the views of the frames `left_out`, on the caller's
+    /// thread.
     pub fn finish(
         mut self,
         final_poses: &[Isometry3<f64>],
+        left_out: &[bool],
     ) -> Result<(MapLayers, TerrainStats), PipelineError> {
         self.requests = None;
         let terrain = match self.handle.take().map(JoinHandle::join) {
@@ -203,7 +205,10 @@ impl TerrainThread {
         if let Ok(e) = self.errors.try_recv() {
             return Err(e);
         }
-        let (layers, mut stats) = terrain.finish(|frame| final_poses.get(frame).copied())?;
+        let (layers, mut stats) = terrain.finish(
+            |frame| final_poses.get(frame).copied(),
+            |frame| left_out.get(frame).copied().unwrap_or(false),
+        )?;
         stats.queue_wait_s = self.queue_wait_s;
         Ok((layers, stats))
     }
