@@ -103,9 +103,9 @@ impl PlaceMemory {
         }
     }
 
-    /// Where a run that its first frame could not place in the saved map starts: the
-    /// saved map's newest keyframe (a run often goes on where the last one ended), as a
-    /// predicted link to it (no information, no inliers) and its `world_from_camera`.
+    /// Where a run starts whose first frame the saved map could not place: at the saved
+    /// map's newest keyframe (a run often goes on where the last one ended), as a predicted
+    /// link to it (no information, no inliers) and its `world_from_camera`.
     /// `None` without a saved map, or once this run has keyframes of its own.
     pub(crate) fn guess_in_saved_map(&self) -> Option<(OdometryLink, Isometry3<f64>)> {
         if !self.saved_map || !self.own.is_empty() {

@@ -175,8 +175,9 @@ impl Slam {
             })?;
         self.vo_wall_s += t0.elapsed().as_secs_f64();
         // (A first frame lost was not found in a saved map: the odometry said so.)
-        let first = self.frames.iter().all(|f| f.status == FrameStatus::Skipped);
-        if r.status == TrackingStatus::Lost && !first {
+        if r.status == TrackingStatus::Lost
+            && !self.frames.iter().all(|f| f.status == FrameStatus::Skipped)
+        {
             tracing::warn!(
                 "frame {} ({:.6} s): tracking failed ({} tracked, {} inliers); pose predicted by constant velocity",
                 r.index, r.t_s, r.tracked, r.inliers

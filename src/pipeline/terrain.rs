@@ -171,8 +171,9 @@ pub struct TerrainStats {
     /// Views dropped before they could be mapped (no pose or no world frame by the time
     /// they had to leave the store).
     pub views_unmapped: usize,
-    /// Views of the store left out of the final map: their frames have no final pose in
-    /// the world (a piece placed by a guess that nothing joined to it).
+    /// Views of the store left out of the final map: those of a start in a saved map that
+    /// the map never placed and nothing joined to it
+    /// ([`crate::pipeline::RunOutput::in_guessed_start`]).
     pub views_left_out: usize,
     /// Depth measurements integrated into the live map, rebuilds included.
     pub points_used: usize,
