@@ -291,6 +291,15 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
     assert_eq!(r["frames_by_status"]["relocalized"], 1, "{r}");
     assert_eq!(r["frames_in_saved_map"], 61, "{r}");
     assert_eq!(r["segment_frames"], serde_json::json!([61, 11]), "{r}");
+    // frames.csv says which: the 11 before the jump in a piece of their own.
+    let csv = std::fs::read_to_string(tmp.path().join("jump_to_60_out/frames.csv")).unwrap();
+    let pieces: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.rsplit(',').next().unwrap())
+        .collect();
+    assert!(pieces[..11].iter().all(|&p| p != "0"), "{pieces:?}");
+    assert!(pieces[11..].iter().all(|&p| p == "0"), "{pieces:?}");
     assert!(
         r["map"]["views_left_out"].as_u64().unwrap() >= 1,
         "{}",

@@ -224,12 +224,14 @@ fn ms_json(values: impl Iterator<Item = f64>) -> Value {
 }
 
 fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
-    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,recover_ms,total_ms,wait_ms\n");
-    for f in &out.frames {
+    // `piece`: 0 for the frames placed in the world's piece, another number for each piece
+    // placed relative to it only by a guess (RunOutput::frame_pieces).
+    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,recover_ms,total_ms,wait_ms,piece\n");
+    for (f, piece) in out.frames.iter().zip(out.frame_pieces()) {
         let t = &f.timing;
         let _ = writeln!(
             s,
-            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3}",
+            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{piece}",
             f.index,
             f.t_s,
             f.status.as_str(),

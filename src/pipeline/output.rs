@@ -204,6 +204,13 @@ impl RunOutput {
         self.pieces().0.iter().filter(|&&p| p == 0).count()
     }
 
+    /// The piece of every frame (see [`Self::segments`]): 0 for the one that holds the
+    /// world's origin ([`Self::frames_in_world_piece`]), a number of its own for each other
+    /// piece.
+    pub fn frame_pieces(&self) -> Vec<usize> {
+        self.pieces().0
+    }
+
     /// Per frame, whether it is in the piece a run in a saved map started by a guess, at a
     /// saved keyframe's pose (its first frame not found in the map), and that nothing joined
     /// to the map: poses that may be metres off, unlike those of a piece after a lost frame,
