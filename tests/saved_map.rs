@@ -246,6 +246,14 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
         assert_eq!(r["frames_by_status"]["lost"], 1, "{name}: {r}");
         assert_eq!(r["frames_in_saved_map"], r["frames"], "{name}: {r}");
         assert!(r["loop_closures"].as_u64().unwrap() >= 1, "{name}: {r}");
+        // Live, the frames are in the map's world only once the first loop joined them.
+        let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+        let live: Vec<&str> = csv.lines().skip(1).map(|l| &l[l.len() - 1..]).collect();
+        assert_eq!(
+            (live[0], live[live.len() - 1]),
+            ("0", "1"),
+            "{name}: {live:?}"
+        );
         let joint = joint_ate(
             (&gt(&teddy), &trajectory(&tmp.path().join("one"))),
             (&gt(&seq), &trajectory(&out)),
@@ -291,15 +299,23 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
     assert_eq!(r["frames_by_status"]["relocalized"], 1, "{r}");
     assert_eq!(r["frames_in_saved_map"], 61, "{r}");
     assert_eq!(r["segment_frames"], serde_json::json!([61, 11]), "{r}");
-    // frames.csv says which: the 11 before the jump in a piece of their own.
+    // frames.csv says which, by the end (`piece`: the 11 before the jump in a piece of
+    // their own) and live (`live_in_world`: from the relocalized frame on).
     let csv = std::fs::read_to_string(tmp.path().join("jump_to_60_out/frames.csv")).unwrap();
-    let pieces: Vec<&str> = csv
-        .lines()
-        .skip(1)
-        .map(|l| l.rsplit(',').next().unwrap())
-        .collect();
-    assert!(pieces[..11].iter().all(|&p| p != "0"), "{pieces:?}");
-    assert!(pieces[11..].iter().all(|&p| p == "0"), "{pieces:?}");
+    let last_two = |l: &str| -> (String, String) {
+        let mut fields = l.rsplit(',');
+        let live = fields.next().unwrap().to_owned();
+        (fields.next().unwrap().to_owned(), live)
+    };
+    let rows: Vec<(String, String)> = csv.lines().skip(1).map(last_two).collect();
+    assert!(
+        rows[..11].iter().all(|(p, l)| p != "0" && l == "0"),
+        "{rows:?}"
+    );
+    assert!(
+        rows[11..].iter().all(|(p, l)| p == "0" && l == "1"),
+        "{rows:?}"
+    );
     assert!(
         r["map"]["views_left_out"].as_u64().unwrap() >= 1,
         "{}",

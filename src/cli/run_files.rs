@@ -224,14 +224,15 @@ fn ms_json(values: impl Iterator<Item = f64>) -> Value {
 }
 
 fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
-    // `piece`: 0 for the frames placed in the world's piece, another number for each piece
-    // placed relative to it only by a guess (RunOutput::frame_pieces).
-    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,recover_ms,total_ms,wait_ms,piece\n");
+    // `piece`: 0 for the frames placed in the world's piece by the end, another number for
+    // each piece placed relative to it only by a guess (RunOutput::frame_pieces);
+    // `live_in_world`: 1 when the frame's live pose was already in that piece.
+    let mut s = String::from("index,t,status,keyframe,keyframe_id,tracked,inliers,decode_ms,detect_ms,track_ms,ransac_ms,refine_ms,recover_ms,total_ms,wait_ms,piece,live_in_world\n");
     for (f, piece) in out.frames.iter().zip(out.frame_pieces()) {
         let t = &f.timing;
         let _ = writeln!(
             s,
-            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{piece}",
+            "{},{:.6},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{piece},{}",
             f.index,
             f.t_s,
             f.status.as_str(),
@@ -246,7 +247,8 @@ fn write_frames_csv(path: &Path, out: &RunOutput) -> Result<()> {
             t.refine_s * 1e3,
             t.recover_s * 1e3,
             t.total_s * 1e3,
-            f.wait_s * 1e3
+            f.wait_s * 1e3,
+            u8::from(f.live_in_world)
         );
     }
     write_atomic(path, s.as_bytes()).with_context(|| format!("writing {}", path.display()))

@@ -20,6 +20,7 @@
 mod coupling;
 mod error;
 mod output;
+mod pieces;
 mod sequence;
 pub mod slam;
 mod stats;

@@ -79,6 +79,11 @@ pub struct FrameRecord {
     pub wait_s: f64,
     /// Why it was skipped, when it was.
     pub skip_reason: Option<String>,
+    /// Whether, when the frame was processed, its pose was placed in the world's piece
+    /// ([`RunOutput::frame_pieces`]' 0): false after a lost frame, or in a saved map before
+    /// its first frame was found there, until a match or the back end's loop closure joins
+    /// the frame's piece to it. A live pose with `false` is where a guess put it.
+    pub live_in_world: bool,
 }
 
 /// The back end's part of a run.
@@ -240,89 +245,41 @@ impl RunOutput {
         self.pieces().1
     }
 
-    /// The piece of every frame (see [`Self::segments`]), numbered by its earliest member:
-    /// 0 holds the first frame or, when the run started in a saved map, the map's
-    /// keyframes (identifiers below the run's first keyframe); and the final map's
-    /// keyframes outside piece 0.
+    /// The piece of every frame now (see [`Self::segments`] and the `pieces` module): 0
+    /// holds the first frame or, when the run started in a saved map, the map's keyframes;
+    /// and the final map's keyframes outside piece 0.
     fn pieces(&self) -> (Vec<usize>, std::collections::BTreeSet<u64>) {
-        fn root(parent: &[usize], mut i: usize) -> usize {
-            while let Some(&p) = parent.get(i).filter(|&&p| p != i) {
-                i = p;
-            }
-            i
-        }
-        let first_own = self
+        let mut pieces = super::pieces::Pieces::new();
+        let made: Vec<usize> = self
             .frames
             .iter()
-            .filter(|f| f.keyframe)
-            .map(|f| f.keyframe_id)
-            .min();
-        let mut parent = vec![0usize];
-        let mut segment_of_keyframe = std::collections::HashMap::new();
-        // A keyframe this run did not make, numbered before its own: a saved map's.
-        let piece_of = |map: &std::collections::HashMap<u64, usize>, k: u64| {
-            map.get(&k)
-                .copied()
-                .or_else(|| first_own.filter(|&f| k < f).map(|_| 0))
-        };
-        let mut segment_of_frame = Vec::with_capacity(self.frames.len());
-        let join = |parent: &mut Vec<usize>, a: usize, b: usize| {
-            let (ra, rb) = (root(parent, a), root(parent, b));
-            if let Some(p) = parent.get_mut(ra.max(rb)) {
-                *p = ra.min(rb);
-            }
-        };
-        for f in &self.frames {
-            // A relocalized frame is placed against the keyframe it was found against, not
-            // the frames before it (its keyframe's link goes there): it starts a piece,
-            // joined below to that keyframe's.
-            if matches!(f.status, FrameStatus::Lost | FrameStatus::Relocalized) {
-                parent.push(parent.len());
-            }
-            let current = parent.len() - 1;
-            if let Some(s) = f
-                .matched_keyframe
-                .and_then(|k| piece_of(&segment_of_keyframe, k))
-            {
-                join(&mut parent, current, s);
-            }
-            if f.keyframe {
-                segment_of_keyframe.insert(f.keyframe_id, current);
-            }
-            segment_of_frame.push(current);
-        }
+            .map(|f| {
+                let keyframe = f.keyframe.then_some(f.keyframe_id);
+                pieces.frame(f.status, f.matched_keyframe, keyframe)
+            })
+            .collect();
         // Loops, and keyframes the final map ties by shared points.
-        let mut ties = Vec::new();
         if let Some(b) = &self.backend {
             for k in &b.keyframes {
                 if let Some(l) = &k.loop_closure {
-                    ties.push((k.keyframe_id, l.matched));
+                    pieces.tie(k.keyframe_id, l.matched);
                 }
             }
             let min_shared = b.config.loop_closure.connected_points.max(1);
             for (&id, kf) in b.map.keyframes() {
-                ties.extend(kf.covisible(min_shared).into_iter().map(|(o, _)| (id, o)));
-            }
-        }
-        for (a, b) in ties {
-            if let (Some(a), Some(b)) = (
-                piece_of(&segment_of_keyframe, a),
-                piece_of(&segment_of_keyframe, b),
-            ) {
-                join(&mut parent, a, b);
+                for (other, _) in kf.covisible(min_shared) {
+                    pieces.tie(id, other);
+                }
             }
         }
         let outside = self
             .backend
             .iter()
             .flat_map(|b| b.map.keyframes().keys())
-            .filter(|&&k| piece_of(&segment_of_keyframe, k).is_some_and(|p| root(&parent, p) != 0))
+            .filter(|&&k| pieces.keyframe_piece(k).is_some_and(|p| p != 0))
             .copied()
             .collect();
-        let frames = segment_of_frame
-            .into_iter()
-            .map(|s| root(&parent, s))
-            .collect();
+        let frames = made.into_iter().map(|p| pieces.root(p)).collect();
         (frames, outside)
     }
 

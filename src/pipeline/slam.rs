@@ -48,6 +48,10 @@ pub struct Slam {
     vo_wall_s: f64,
     /// Wall time in [`Slam::process`], [`Slam::skip`] and [`Slam::finish`] (s).
     wall_s: f64,
+    /// The run's pieces as known live (each frame's `live_in_world`).
+    pieces: super::pieces::Pieces,
+    /// Back-end reports already read into `pieces`.
+    reports_seen: usize,
 }
 
 impl Slam {
@@ -102,6 +106,8 @@ impl Slam {
             frames: Vec::new(),
             vo_wall_s: 0.0,
             wall_s: 0.0,
+            pieces: super::pieces::Pieces::new(),
+            reports_seen: 0,
         })
     }
 
@@ -233,6 +239,7 @@ impl Slam {
             timing: r.timing,
             wait_s,
             skip_reason: None,
+            live_in_world: false,
         };
         self.wall_s += start.elapsed().as_secs_f64();
         Ok(self.record(record))
@@ -271,6 +278,7 @@ impl Slam {
             timing: StageTimes::default(),
             wait_s,
             skip_reason: Some(reason),
+            live_in_world: false,
         };
         self.wall_s += start.elapsed().as_secs_f64();
         Ok(self.record(record))
@@ -343,7 +351,19 @@ impl Slam {
     }
 
     /// Keeps `record` as the next frame's and returns a copy for the caller.
-    fn record(&mut self, record: FrameRecord) -> FrameRecord {
+    fn record(&mut self, mut record: FrameRecord) -> FrameRecord {
+        // The loops the back end closed since the last frame join their pieces.
+        if let Some(c) = &self.coupling {
+            for k in c.reports.get(self.reports_seen..).unwrap_or_default() {
+                if let Some(l) = &k.loop_closure {
+                    self.pieces.tie(k.keyframe_id, l.matched);
+                }
+            }
+            self.reports_seen = c.reports.len();
+        }
+        let keyframe = record.keyframe.then_some(record.keyframe_id);
+        let piece = (self.pieces).frame(record.status, record.matched_keyframe, keyframe);
+        record.live_in_world = self.pieces.root(piece) == 0;
         self.frames.push(record.clone());
         record
     }
