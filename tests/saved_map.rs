@@ -36,6 +36,23 @@ fn trajectory(dir: &Path) -> Trajectory {
     read_tum_trajectory(&dir.join("trajectory.tum")).unwrap()
 }
 
+/// Maps teddy_200's first 100 frames (run "one" under `dir`) and saves the map to
+/// `dir/teddy.map.json`; returns its path.
+fn map_of_the_first_100_frames(teddy: &Path, dir: &Path) -> std::path::PathBuf {
+    let first = dir.join("first");
+    derived(teddy, &first, |i| i < 100);
+    let map = dir.join("teddy.map.json");
+    let save = [
+        "--camera",
+        "fr3",
+        "--no-map",
+        "--save-map",
+        map.to_str().unwrap(),
+    ];
+    common::run_report("run", &first, &dir.join("one"), &save);
+    map
+}
+
 #[test]
 fn a_second_run_localizes_in_a_saved_map_and_extends_it() {
     let Some(teddy) = data("tum/rgbd_dataset_freiburg3_teddy_200") else {
@@ -151,14 +168,11 @@ fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let (first, later) = (tmp.path().join("first"), tmp.path().join("later"));
-    derived(&teddy, &first, |i| i < 100);
+    let later = tmp.path().join("later");
     // Starting half a second after the map's last frame, where the view has moved on.
     derived(&teddy, &later, |i| i >= 115);
-    let map = tmp.path().join("teddy.map.json");
+    let map = map_of_the_first_100_frames(&teddy, tmp.path());
     let map_arg = map.to_str().unwrap();
-    let save = ["--camera", "fr3", "--no-map", "--save-map", map_arg];
-    common::run_report("run", &first, &tmp.path().join("one"), &save);
     // The same map as version 1 wrote it: no place features.
     let mut v: serde_json::Value = serde_json::from_slice(&std::fs::read(&map).unwrap()).unwrap();
     assert_eq!(v["version"], 2);
@@ -230,12 +244,8 @@ fn a_start_the_map_cannot_place_is_joined_to_it_when_the_run_comes_back() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let first = tmp.path().join("first");
-    derived(&teddy, &first, |i| i < 100);
-    let map = tmp.path().join("teddy.map.json");
+    let map = map_of_the_first_100_frames(&teddy, tmp.path());
     let map_arg = map.to_str().unwrap();
-    let save = ["--camera", "fr3", "--no-map", "--save-map", map_arg];
-    common::run_report("run", &first, &tmp.path().join("one"), &save);
     let gt = |dir: &Path| read_tum_trajectory(&dir.join("groundtruth.txt")).unwrap();
     let in_map = |name: &str, order: &[usize]| {
         let seq = tmp.path().join(name);
