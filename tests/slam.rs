@@ -25,12 +25,14 @@ fn teddy_bundle_adjustment_beats_the_odometry_alone() {
     assert_eq!(ba["backend"], "ba");
     assert_eq!(ba["frames_tracked"], 193, "{ba}");
     let (ate_ba, ate_vo) = (num(&ba["ate"], "rmse"), num(&vo["ate"], "rmse"));
-    // Measured 4.4 mm (seeds 1-5: 4.4-4.6 mm) against 8-17 mm for the odometry alone and
-    // 6.3-7.0 mm for ORB-SLAM3 on the same frames; the bound leaves room for other
-    // machines' floating point, not for a regression to ORB-SLAM3's level.
+    // Measured 4.4 mm (seeds 1-5: 4.4-4.6 mm) against 4.9-8.6 mm for the odometry alone
+    // (6.05 mm at this seed) and 6.3-7.0 mm for ORB-SLAM3 on the same frames; the bound
+    // leaves room for other machines' floating point, not for a regression to ORB-SLAM3's
+    // level. The ratio bound was 0.7 while the odometry alone measured 8-17 mm, before it
+    // weighed its measurements as the back end does.
     assert!(ate_ba <= 0.0055, "ATE with bundle adjustment {ate_ba} m");
     assert!(
-        ate_ba < 0.7 * ate_vo,
+        ate_ba < 0.8 * ate_vo,
         "ATE {ate_ba} m, odometry alone {ate_vo} m"
     );
     // The live poses (what a robot gets at run time) are better than the odometry too.

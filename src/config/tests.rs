@@ -138,3 +138,30 @@ fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
         assert!(err.contains(key) && err.contains(allowed), "{text}: {err}");
     }
 }
+
+/// The odometry alone weighs its measurements as the back end does (its documented
+/// reason), so a change to one of the two noise models shows here.
+#[test]
+fn the_odometry_alone_uses_the_back_ends_noise_model() {
+    let vo = VoConfig::odometry_only();
+    let backend = BackendConfig::default();
+    vo.validate().unwrap();
+    assert_eq!(vo.model_noise_m, backend.model_noise_m);
+    for depth_m in [0.5, 1.5, 4.0] {
+        let ratio = vo.uncertainty.sigma_d(depth_m) / backend.depth_model.sigma_d(depth_m);
+        assert!(
+            (ratio - backend.depth_noise_scale).abs() < 1e-9,
+            "depth {depth_m} m: sigma ratio {ratio}"
+        );
+    }
+    // Only those and the keyframe rate differ from the SLAM's odometry.
+    let slam = VoConfig::default();
+    assert_ne!(vo.redetect_fraction, slam.redetect_fraction);
+    let same = VoConfig {
+        redetect_fraction: slam.redetect_fraction,
+        model_noise_m: slam.model_noise_m,
+        uncertainty: slam.uncertainty,
+        ..vo
+    };
+    assert_eq!(same, slam);
+}
