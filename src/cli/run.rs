@@ -15,7 +15,6 @@ use stride_backend::{BackendConfig, BackendMode, SavedMap};
 use stride_datasets::mcap::McapTopics;
 use stride_datasets::sequence::Sequence;
 use stride_datasets::tum::AssociationOptions;
-use stride_frontend::VoConfig;
 
 #[derive(Debug, Args)]
 pub struct RunArgs {
@@ -239,19 +238,21 @@ impl RunArgs {
     }
 
     /// Every stage's parameters: the --config file (or the defaults), then the flags.
-    /// Without a file, the odometry alone (`--backend none`, `--vo-only`) takes
-    /// [`VoConfig::odometry_only`]'s settings.
+    /// The odometry alone (`--backend none`, `--vo-only`) starts from
+    /// [`Config::odometry_alone`]: the keys a file leaves out take its values.
     pub fn config(&self) -> Result<Config> {
-        let mut c = match &self.config {
-            Some(path) => Config::load(path)?,
-            None => Config::default(),
-        };
         let no_backend = self.vo_only || self.backend == Some(BackendArg::None);
+        let base = if no_backend {
+            Config::odometry_alone()
+        } else {
+            Config::default()
+        };
+        let mut c = match &self.config {
+            Some(path) => Config::load_over(path, &base)?,
+            None => base,
+        };
         if no_backend {
             c.backend = None;
-            if self.config.is_none() {
-                c.odometry = VoConfig::odometry_only();
-            }
         } else if let Some(mode) = self.backend.and_then(BackendArg::mode) {
             let b = c.backend.get_or_insert_with(BackendConfig::default);
             b.mode = mode;

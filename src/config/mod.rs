@@ -116,12 +116,49 @@ impl Config {
 
     /// Reads and checks the configuration file at `path`.
     pub fn load(path: &std::path::Path) -> Result<Self, PipelineError> {
+        Self::load_over(path, &Config::default())
+    }
+
+    /// Reads and checks the configuration file at `path`; the keys it leaves out take
+    /// `base`'s values instead of the defaults (the odometry alone starts from
+    /// [`Config::odometry_alone`], so a file that does not set its noise model does not
+    /// bring back the SLAM's).
+    pub fn load_over(path: &std::path::Path, base: &Config) -> Result<Self, PipelineError> {
         let name = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| PipelineError::ConfigFile {
             path: name.clone(),
             message: e.to_string(),
         })?;
-        Self::from_toml(&text, &name)
+        Self::from_toml_over(&text, &name, base)
+    }
+
+    /// [`Config::from_toml`], with the keys the text leaves out taken from `base`.
+    pub fn from_toml_over(text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
+        // Parsed on the defaults first: its errors name the key and line in the file.
+        let parsed = Self::from_toml(text, path)?;
+        if *base == Config::default() {
+            return Ok(parsed);
+        }
+        let file_error = |message: String| PipelineError::ConfigFile {
+            path: path.to_owned(),
+            message,
+        };
+        let mut merged = toml::Value::try_from(base).map_err(|e| file_error(e.to_string()))?;
+        let file: toml::Value = toml::from_str(text).map_err(|e| file_error(e.to_string()))?;
+        overlay(&mut merged, file);
+        let config: Config = merged.try_into().map_err(|e| file_error(e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The defaults of the odometry running alone: no back end, and the odometry's
+    /// [`VoConfig::odometry_only`] settings.
+    pub fn odometry_alone() -> Self {
+        Self {
+            odometry: VoConfig::odometry_only(),
+            backend: None,
+            ..Self::default()
+        }
     }
 
     /// The configuration as TOML (every key, the values in use).
@@ -174,6 +211,24 @@ impl Config {
             map: self.map.clone(),
             saved_map: None,
         }
+    }
+}
+
+/// Writes `over`'s keys into `base`, table by table: a key `over` leaves out keeps `base`'s
+/// value.
+fn overlay(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (key, value) in o {
+                match b.get_mut(&key) {
+                    Some(slot) => overlay(slot, value),
+                    None => {
+                        b.insert(key, value);
+                    }
+                }
+            }
+        }
+        (slot, value) => *slot = value,
     }
 }
 

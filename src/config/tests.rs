@@ -165,3 +165,38 @@ fn the_odometry_alone_uses_the_back_ends_noise_model() {
     };
     assert_eq!(same, slam);
 }
+
+/// A file read for the odometry alone keeps its settings where it is silent, takes the
+/// file's values where it is not, and still names an unknown key.
+#[test]
+fn a_file_for_the_odometry_alone_changes_only_the_keys_it_sets() {
+    let base = Config::odometry_alone();
+    assert_eq!(
+        Config::from_toml_over("", "empty.toml", &base).unwrap(),
+        base
+    );
+    let text = "[odometry]\nmodel_noise_m = 0.01\n[odometry.uncertainty]\nvar_u_px2 = 2.0\n";
+    let c = Config::from_toml_over(text, "f.toml", &base).unwrap();
+    assert_eq!(c.odometry.model_noise_m, 0.01);
+    assert_eq!(c.odometry.uncertainty.var_u_px2, 2.0);
+    let vo = VoConfig::odometry_only();
+    assert_eq!(c.odometry.redetect_fraction, vo.redetect_fraction);
+    assert_eq!(
+        c.odometry.uncertainty.depth_sigma_coeffs,
+        vo.uncertainty.depth_sigma_coeffs
+    );
+    assert_eq!(c.schedule, base.schedule);
+    // Over the SLAM's defaults the same file leaves the SLAM's noise model where it is silent.
+    let slam = Config::from_toml(text, "f.toml").unwrap();
+    assert_eq!(
+        slam.odometry.redetect_fraction,
+        VoConfig::default().redetect_fraction
+    );
+    let err = Config::from_toml_over("[odometry]\nmodel_noise = 1\n", "bad.toml", &base)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("bad.toml") && err.contains("model_noise"),
+        "{err}"
+    );
+}
