@@ -224,6 +224,21 @@ fn the_configuration_file_is_documented_checked_and_overridden_by_flags() {
         &["--config", c, "--seed", "2", "--max-frames", "8"],
     );
     assert_eq!(r["seed"], 2);
+    // The odometry alone keeps its own defaults where the file is silent.
+    let alone = tmp.path().join("alone");
+    let r = common::run_report(
+        "run",
+        std::path::Path::new(teddy),
+        &alone,
+        &["--config", c, "--vo-only", "--max-frames", "8"],
+    );
+    assert_eq!(r["seed"], 5);
+    assert_eq!(
+        r["config"]["odometry"]["model_noise_m"], 0.002,
+        "{}",
+        r["config"]
+    );
+    assert_eq!(r["config"]["odometry"]["redetect_fraction"], 0.6);
     // `stride map` takes the file's [map.stack]; its flags override it.
     std::fs::write(
         &cfg,

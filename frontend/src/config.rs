@@ -428,45 +428,61 @@ impl VoConfig {
         Ok(())
     }
 
-    /// The defaults for the odometry running alone, without a back end: keyframes (and new
-    /// points) less often, which drifts less (see [`VoConfig::redetect_fraction`]), and the
-    /// back end's noise model for its measurements: 2 mm of isotropic noise, and depth
-    /// trusted 3 times less than the sensor model says (its standard deviation scaled; the
-    /// back end's `model_noise_m` and `depth_noise_scale`).
+    /// This configuration with the back end's noise model for its measurements: 2 mm of
+    /// isotropic noise, and depth trusted 3 times less than the sensor model says (its
+    /// standard deviation scaled; the back end's `model_noise_m` and `depth_noise_scale`).
+    /// The odometry alone takes it ([`VoConfig::odometry_only`]).
     ///
     /// With the SLAM's 2 cm, the isotropic term swamps the sensor model (about 3 mm across
     /// the ray and 7 mm along it at 1.5 m), so the estimate weighs a point's depth as much as
     /// its pixel position, and the odometry's motions came out short: 1.1-1.7 % on
-    /// teddy_200 (Sim(3) scale 1.011-1.017), rotations included. Weighted as the back end
-    /// weighs them, ATE rmse over RANSAC seeds 1-3 (mean, mm; 2026-11-27): teddy_200 9.7 ->
-    /// 6.7, every 5th frame (seeds 1-5) 17.0 -> 6.7, every 3rd 8.7 -> 8.4, every 10th 15.6
-    /// -> 4.5, a 1 s gap 30.0 -> 5.0, a 600-frame pingpong 18.2 -> 6.9, blurred along the
-    /// motion by 5 px 29.5 -> 15.8 and by 25 px 32.7 -> 21.3; three synthetic walks 0.29 /
-    /// 0.57 / 0.32 -> 0.17 / 0.37 / 0.25. With a back end the SLAM keeps its own settings:
-    /// this change there was mixed (teddy_200 4.5 -> 6.6 mm, every 10th frame 5.1 -> 4.4).
-    pub fn odometry_only() -> Self {
-        let base = Self::default();
-        let [k1, k2, k3, k4] = base.uncertainty.depth_sigma_coeffs;
-        let k = ODOMETRY_ONLY_DEPTH_NOISE_SCALE;
+    /// teddy_200 (Sim(3) scale 1.011-1.017), rotations included. Measured 2026-11-27 (ATE
+    /// rmse, mean over RANSAC seeds 1-3, mm), the odometry alone with it
+    /// ([`VoConfig::odometry_only`]): teddy_200 9.7 -> 6.7, every 5th frame (seeds 1-5) 17.0
+    /// -> 6.7, every 3rd 8.7 -> 8.4, every 10th 15.6 -> 4.5, a 1 s gap 30.0 -> 5.0, a
+    /// 600-frame pingpong 18.2 -> 6.9, blurred along the motion by 5 px 29.5 -> 15.8 and by
+    /// 25 px 32.7 -> 21.3; three synthetic walks 0.29 / 0.57 / 0.32 -> 0.17 / 0.37 / 0.25.
+    /// The back ends keep the SLAM's settings, because blurred frames suffer. The pose
+    /// graph with it: teddy_200 10.5 -> 6.3, from frames 5, 10, 20, 30 11.8 / 15.1 / 13.3 /
+    /// 9.7 -> 5.9 / 5.8 / 7.0 / 5.7, every 5th frame 14.5 -> 5.3, a 600-frame pingpong 13.5
+    /// -> 6.4, but blurred by 5 px 9.0 -> 25.7 (Sim(3) scale 0.97: too large) and by 25 px
+    /// 19.9 -> 25.1. Bundle adjustment (with the back end's depth inflation at 1, so as not
+    /// to apply it twice): teddy_200 4.5 -> 6.9, from frame 10 9.0 -> 4.4, every 10th frame
+    /// 5.1 -> 4.1, blurred by 25 px 19.2 -> 14.6, by 5 px 7.6 -> 8.0 (live poses 7.2 ->
+    /// 11.5).
+    pub fn with_backend_noise_model(self) -> Self {
+        let [k1, k2, k3, k4] = self.uncertainty.depth_sigma_coeffs;
+        let k = BACKEND_DEPTH_NOISE_SCALE;
         Self {
-            redetect_fraction: 0.6,
-            model_noise_m: ODOMETRY_ONLY_MODEL_NOISE_M,
+            model_noise_m: BACKEND_MODEL_NOISE_M,
             uncertainty: PrimeSenseModel {
                 depth_sigma_coeffs: [k1 * k, k2 * k, k3 * k, k4 * k],
-                ..base.uncertainty
+                ..self.uncertainty
             },
-            ..base
+            ..self
+        }
+    }
+
+    /// The defaults for the odometry running alone, without a back end: keyframes (and new
+    /// points) less often, which drifts less (see [`VoConfig::redetect_fraction`]), and the
+    /// back end's noise model ([`VoConfig::with_backend_noise_model`]).
+    pub fn odometry_only() -> Self {
+        Self {
+            redetect_fraction: 0.6,
+            ..Self::default().with_backend_noise_model()
         }
     }
 }
 
-/// Isotropic noise (m) of [`VoConfig::odometry_only`]: the back end's `model_noise_m`.
-const ODOMETRY_ONLY_MODEL_NOISE_M: f64 = 0.002;
+/// Isotropic noise (m) of [`VoConfig::with_backend_noise_model`]: the back end's
+/// `model_noise_m`.
+const BACKEND_MODEL_NOISE_M: f64 = 0.002;
 
-/// How many times larger [`VoConfig::odometry_only`] takes the depth's standard deviation
-/// than the sensor model's: the back end's `depth_noise_scale` (Kinect-class depth errors
-/// are correlated in space and time, so repeated observations do not average them out).
-const ODOMETRY_ONLY_DEPTH_NOISE_SCALE: f64 = 3.0;
+/// How many times larger [`VoConfig::with_backend_noise_model`] takes the depth's standard
+/// deviation than the sensor model's: the back end's `depth_noise_scale` (Kinect-class
+/// depth errors are correlated in space and time, so repeated observations do not average
+/// them out).
+const BACKEND_DEPTH_NOISE_SCALE: f64 = 3.0;
 
 impl Default for VoConfig {
     fn default() -> Self {

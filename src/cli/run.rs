@@ -238,22 +238,28 @@ impl RunArgs {
     }
 
     /// Every stage's parameters: the --config file (or the defaults), then the flags.
-    /// The odometry alone (`--backend none`, `--vo-only`) starts from
-    /// [`Config::odometry_alone`]: the keys a file leaves out take its values.
+    /// The defaults are those of the back end chosen (by the flags, else by the file; see
+    /// [`Config::defaults_for`]): the keys a file leaves out take them.
     pub fn config(&self) -> Result<Config> {
         let no_backend = self.vo_only || self.backend == Some(BackendArg::None);
-        let base = if no_backend {
-            Config::odometry_alone()
+        let flag_mode = if no_backend {
+            Some(None)
         } else {
-            Config::default()
+            self.backend.and_then(BackendArg::mode).map(Some)
         };
+        let file = self.config.as_deref().map(Config::load).transpose()?;
+        let mode = flag_mode.unwrap_or_else(|| match &file {
+            Some(c) => c.backend.as_ref().map(|b| b.mode),
+            None => Some(BackendMode::BundleAdjustment),
+        });
+        let base = Config::defaults_for(mode);
         let mut c = match &self.config {
             Some(path) => Config::load_over(path, &base)?,
             None => base,
         };
         if no_backend {
             c.backend = None;
-        } else if let Some(mode) = self.backend.and_then(BackendArg::mode) {
+        } else if let Some(mode) = mode {
             let b = c.backend.get_or_insert_with(BackendConfig::default);
             b.mode = mode;
         }

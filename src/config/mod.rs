@@ -7,7 +7,7 @@ use crate::pipeline::terrain::TerrainConfig;
 use crate::pipeline::world::WorldPlan;
 use crate::pipeline::{PipelineConfig, PipelineError, Schedule};
 use serde::{Deserialize, Serialize};
-use stride_backend::{BackendConfig, BackendError};
+use stride_backend::{BackendConfig, BackendError, BackendMode};
 use stride_frontend::{FrontendError, VoConfig};
 
 /// The defaults, documented key by key: what `stride config --print-defaults` prints. A
@@ -122,7 +122,7 @@ impl Config {
     /// Reads and checks the configuration file at `path`; the keys it leaves out take
     /// `base`'s values instead of the defaults (the odometry alone starts from
     /// [`Config::odometry_alone`], so a file that does not set its noise model does not
-    /// bring back the SLAM's).
+    /// bring back the SLAM's; see [`Config::defaults_for`]).
     pub fn load_over(path: &std::path::Path, base: &Config) -> Result<Self, PipelineError> {
         let name = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| PipelineError::ConfigFile {
@@ -158,6 +158,21 @@ impl Config {
             odometry: VoConfig::odometry_only(),
             backend: None,
             ..Self::default()
+        }
+    }
+
+    /// The defaults for a back end in `mode` (`None`: the odometry alone, which has its
+    /// own: [`Config::odometry_alone`]).
+    pub fn defaults_for(mode: Option<BackendMode>) -> Self {
+        match mode {
+            None => Self::odometry_alone(),
+            Some(mode) => Self {
+                backend: Some(BackendConfig {
+                    mode,
+                    ..BackendConfig::default()
+                }),
+                ..Self::default()
+            },
         }
     }
 

@@ -200,3 +200,25 @@ fn a_file_for_the_odometry_alone_changes_only_the_keys_it_sets() {
         "{err}"
     );
 }
+
+/// The odometry alone has its own defaults; the back ends share the SLAM's.
+#[test]
+fn the_defaults_follow_the_back_end() {
+    let pg = Config::defaults_for(Some(BackendMode::PoseGraph));
+    assert_eq!(
+        pg.backend.as_ref().map(|b| b.mode),
+        Some(BackendMode::PoseGraph)
+    );
+    assert_eq!(pg.odometry, VoConfig::default());
+    assert_eq!(
+        Config::defaults_for(Some(BackendMode::BundleAdjustment)),
+        Config::default()
+    );
+    assert_eq!(Config::defaults_for(None), Config::odometry_alone());
+    assert!(Config::odometry_alone().backend.is_none());
+    // A file that turns the back end off, read over the odometry alone's defaults, keeps
+    // them.
+    let alone = Config::odometry_alone();
+    let c = Config::from_toml_over("backend = false\n", "alone.toml", &alone).unwrap();
+    assert_eq!(c, alone);
+}
