@@ -30,9 +30,11 @@ pub enum FrontendError {
         /// What is allowed.
         allowed: &'static str,
     },
-    /// The first frame of a run in a saved map could not be placed in it.
+    /// The first frame of a run in a saved map could not be placed in it. The odometry
+    /// then puts it at the newest saved keyframe's pose instead; this error reaches the
+    /// caller only when the map holds no keyframe to put it at.
     #[error(
-        "not localized in the saved map: its {features} ORB features with depth matched at most {most_matches} of one keyframe's (of {keyframes}), and no keyframe gave {min_inliers} RANSAC inliers; start where the map was made"
+        "not localized in the saved map: its {features} ORB features with depth matched at most {most_matches} of one keyframe's (of {keyframes}), and no keyframe gave {min_inliers} RANSAC inliers"
     )]
     NotLocalized {
         /// Frame index.
