@@ -442,7 +442,7 @@ impl VoConfig {
     /// -> 6.7, every 3rd 8.7 -> 8.4, every 10th 15.6 -> 4.5, a 1 s gap 30.0 -> 5.0, a
     /// 600-frame pingpong 18.2 -> 6.9, blurred along the motion by 5 px 29.5 -> 15.8 and by
     /// 25 px 32.7 -> 21.3; three synthetic walks 0.29 / 0.57 / 0.32 -> 0.17 / 0.37 / 0.25.
-    /// The back ends keep the SLAM's settings, because blurred frames suffer. The pose
+    /// The back ends keep the SLAM's settings: with them it was mixed, and blur suffered. The pose
     /// graph with it: teddy_200 10.5 -> 6.3, from frames 5, 10, 20, 30 11.8 / 15.1 / 13.3 /
     /// 9.7 -> 5.9 / 5.8 / 7.0 / 5.7, every 5th frame 14.5 -> 5.3, a 600-frame pingpong 13.5
     /// -> 6.4, but blurred by 5 px 9.0 -> 25.7 (Sim(3) scale 0.97: too large) and by 25 px
