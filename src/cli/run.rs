@@ -247,15 +247,12 @@ impl RunArgs {
         } else {
             self.backend.and_then(BackendArg::mode).map(Some)
         };
-        let file = self.config.as_deref().map(Config::load).transpose()?;
-        let mode = flag_mode.unwrap_or_else(|| match &file {
-            Some(c) => c.backend.as_ref().map(|b| b.mode),
-            None => Some(BackendMode::BundleAdjustment),
-        });
-        let base = Config::defaults_for(mode);
-        let mut c = match &self.config {
-            Some(path) => Config::load_over(path, &base)?,
-            None => base,
+        let (mut c, mode) = match &self.config {
+            Some(path) => Config::load_for(path, flag_mode)?,
+            None => {
+                let mode = flag_mode.unwrap_or(Some(BackendMode::BundleAdjustment));
+                (Config::defaults_for(mode), mode)
+            }
         };
         if no_backend {
             c.backend = None;

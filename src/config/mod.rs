@@ -116,26 +116,35 @@ impl Config {
 
     /// Reads and checks the configuration file at `path`.
     pub fn load(path: &std::path::Path) -> Result<Self, PipelineError> {
-        Self::load_over(path, &Config::default())
+        let (text, name) = read(path)?;
+        Self::from_toml(&text, &name)
     }
 
-    /// Reads and checks the configuration file at `path`; the keys it leaves out take
-    /// `base`'s values instead of the defaults (the odometry alone starts from
-    /// [`Config::odometry_alone`], so a file that does not set its noise model does not
-    /// bring back the SLAM's; see [`Config::defaults_for`]).
-    pub fn load_over(path: &std::path::Path, base: &Config) -> Result<Self, PipelineError> {
-        let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| PipelineError::ConfigFile {
-            path: name.clone(),
-            message: e.to_string(),
-        })?;
-        Self::from_toml_over(&text, &name, base)
+    /// Reads and checks the configuration file at `path` over the defaults of the back end
+    /// it runs with ([`Config::defaults_for`]): `mode` when the caller decides it (`Some`,
+    /// a command's flags), else the file's own. The keys the file leaves out take those
+    /// defaults. Returns the configuration and the back end's mode.
+    pub fn load_for(
+        path: &std::path::Path,
+        mode: Option<Option<BackendMode>>,
+    ) -> Result<(Self, Option<BackendMode>), PipelineError> {
+        let (text, name) = read(path)?;
+        let parsed = Self::from_toml(&text, &name)?;
+        let mode = mode.unwrap_or_else(|| parsed.backend.as_ref().map(|b| b.mode));
+        let config = Self::over(parsed, &text, &name, &Self::defaults_for(mode))?;
+        Ok((config, mode))
     }
 
     /// [`Config::from_toml`], with the keys the text leaves out taken from `base`.
     pub fn from_toml_over(text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
         // Parsed on the defaults first: its errors name the key and line in the file.
         let parsed = Self::from_toml(text, path)?;
+        Self::over(parsed, text, path, base)
+    }
+
+    /// `text` (already `parsed` on the defaults, so free of errors a file can have) with
+    /// the keys it leaves out taken from `base`.
+    fn over(parsed: Config, text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
         if *base == Config::default() {
             return Ok(parsed);
         }
@@ -227,6 +236,16 @@ impl Config {
             saved_map: None,
         }
     }
+}
+
+/// The text of the configuration file at `path`, and the name errors give it.
+fn read(path: &std::path::Path) -> Result<(String, String), PipelineError> {
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| PipelineError::ConfigFile {
+        path: name.clone(),
+        message: e.to_string(),
+    })?;
+    Ok((text, name))
 }
 
 /// Writes `over`'s keys into `base`, table by table: a key `over` leaves out keeps `base`'s
