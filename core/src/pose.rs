@@ -37,9 +37,14 @@ pub enum PoseError {
 /// below it they silently substitute the identity rotation, which we refuse to do.
 pub const MIN_QUATERNION_NORM: f64 = 2.980_232_238_769_531_2e-8;
 
+/// Quaternions whose norm is within this of 1 count as unit quaternions and are not
+/// normalised again (a few rounding steps of a unit quaternion's norm).
+const UNIT_NORM_TOLERANCE: f64 = 8.0 * f64::EPSILON;
+
 /// Builds a pose from a translation (metres) and a quaternion in TUM order `(qx, qy, qz, qw)`.
 ///
-/// The quaternion is normalised. Returns the pose and the quaternion's norm before
+/// The quaternion is normalised, unless its norm is already 1 within a few rounding steps:
+/// then it is kept digit for digit, so that a pose read and written again is unchanged. Returns the pose and the quaternion's norm before
 /// normalisation, so that callers can warn about quaternions far from unit length.
 pub fn pose_from_translation_quaternion(
     t_m: [f64; 3],
@@ -60,7 +65,13 @@ pub fn pose_from_translation_quaternion(
     if norm < MIN_QUATERNION_NORM {
         return Err(PoseError::ZeroQuaternion { norm });
     }
-    let rotation = UnitQuaternion::from_quaternion(q);
+    // A quaternion already of unit norm is kept as given: normalising it can change its last
+    // digit, and a pose read and written again (a saved map saved again) would drift.
+    let rotation = if (norm - 1.0).abs() <= UNIT_NORM_TOLERANCE {
+        UnitQuaternion::new_unchecked(q)
+    } else {
+        UnitQuaternion::from_quaternion(q)
+    };
     let translation = Translation3::new(t_m[0], t_m[1], t_m[2]);
     Ok((Isometry3::from_parts(translation, rotation), norm))
 }
@@ -106,6 +117,30 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
     use nalgebra::Vector3;
+
+    /// A unit quaternion read and written again keeps every digit (this one's last digit
+    /// changed when it was normalised again), and one far from unit length is normalised.
+    #[test]
+    fn a_unit_quaternion_is_written_back_as_it_was_read() {
+        let q = [
+            -0.566602364126898,
+            0.6009677246189715,
+            -0.38672213026751995,
+            0.4101774602455104,
+        ];
+        let t = [0.0, 0.0, 1.4347255896186015];
+        let normalised = UnitQuaternion::from_quaternion(Quaternion::new(q[3], q[0], q[1], q[2]));
+        assert_ne!(normalised.coords.x, q[0], "the case this test is about");
+        let (pose, norm) = pose_from_translation_quaternion(t, q).unwrap();
+        assert!((norm - 1.0).abs() < 1e-15);
+        assert_eq!(pose_to_translation_quaternion(&pose), (t, q));
+        let (pose, norm) = pose_from_translation_quaternion(t, [0.0, 0.0, 0.0, 2.0]).unwrap();
+        assert_eq!(norm, 2.0);
+        assert_eq!(
+            pose_to_translation_quaternion(&pose).1,
+            [0.0, 0.0, 0.0, 1.0]
+        );
+    }
 
     #[test]
     fn round_trip_through_tum_fields() {
