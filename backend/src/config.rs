@@ -60,7 +60,9 @@ pub struct BackendConfig {
     /// deviation is scaled): Kinect-class depth errors are correlated in space and time
     /// (disparity quantization, per-pixel bias), so repeated observations do not average
     /// them out as the model assumes. Measured on teddy_200 (five seeds, ATE): 1 gives
-    /// 5.3 mm, 2 gives 4.8, 3 gives 4.8, 6 gives 5.2.
+    /// 5.3 mm, 2 gives 4.8, 3 gives 4.8, 6 gives 5.2. 1 when the frontend's covariances
+    /// already carry the factor (stride's SLAM defaults, whose odometry takes 3 times the
+    /// sensor's depth noise), so that it applies once.
     pub depth_noise_scale: f64,
     /// Standard deviations (m, rad) of an odometry link whose pose was predicted, not
     /// estimated (the frontend lost track): weak, but it keeps the map connected.

@@ -431,7 +431,9 @@ impl VoConfig {
     /// This configuration with the back end's noise model for its measurements: 2 mm of
     /// isotropic noise, and depth trusted 3 times less than the sensor model says (its
     /// standard deviation scaled; the back end's `model_noise_m` and `depth_noise_scale`).
-    /// The odometry alone takes it ([`VoConfig::odometry_only`]).
+    /// The odometry alone takes it ([`VoConfig::odometry_only`]), and so does the SLAM with
+    /// bundle adjustment (`stride::Config::default`, whose back end then leaves the depth as
+    /// these covariances give it); the pose graph keeps [`VoConfig::default`].
     ///
     /// With the SLAM's 2 cm, the isotropic term swamps the sensor model (about 3 mm across
     /// the ray and 7 mm along it at 1.5 m), so the estimate weighs a point's depth as much as
@@ -442,14 +444,15 @@ impl VoConfig {
     /// -> 6.7, every 3rd 8.7 -> 8.4, every 10th 15.6 -> 4.5, a 1 s gap 30.0 -> 5.0, a
     /// 600-frame pingpong 18.2 -> 6.9, blurred along the motion by 5 px 29.5 -> 15.8 and by
     /// 25 px 32.7 -> 21.3; three synthetic walks 0.29 / 0.57 / 0.32 -> 0.17 / 0.37 / 0.25.
-    /// The back ends keep the SLAM's settings: with them it was mixed, and blur suffered. The pose
-    /// graph with it: teddy_200 10.5 -> 6.3, from frames 5, 10, 20, 30 11.8 / 15.1 / 13.3 /
+    /// The pose graph with it: teddy_200 10.5 -> 6.3, from frames 5, 10, 20, 30 11.8 / 15.1 / 13.3 /
     /// 9.7 -> 5.9 / 5.8 / 7.0 / 5.7, every 5th frame 14.5 -> 5.3, a 600-frame pingpong 13.5
     /// -> 6.4, but blurred by 5 px 9.0 -> 25.7 (Sim(3) scale 0.97: too large) and by 25 px
     /// 19.9 -> 25.1. Bundle adjustment (with the back end's depth inflation at 1, so as not
-    /// to apply it twice): teddy_200 4.5 -> 6.9, from frame 10 9.0 -> 4.4, every 10th frame
-    /// 5.1 -> 4.1, blurred by 25 px 19.2 -> 14.6, by 5 px 7.6 -> 8.0 (live poses 7.2 ->
-    /// 11.5).
+    /// to apply it twice), final / live ATE: teddy_200 from frames 0, 5, 10, 20, 30 (seeds
+    /// 1-3) 6.87 / 6.82 -> 6.24 / 5.67 in the mean (from frame 0 alone 4.5 / 5.4 -> 6.9 /
+    /// 5.5), every 10th frame 5.1 / 11.2 -> 4.1 / 4.0, blurred by 25 px 19.2 / 19.8 -> 14.6
+    /// / 13.7, by 5 px (seeds 1-5) 8.0 / 7.8 -> 7.6 / 10.0, five synthetic walks 14-43 %
+    /// lower.
     pub fn with_backend_noise_model(self) -> Self {
         let [k1, k2, k3, k4] = self.uncertainty.depth_sigma_coeffs;
         let k = BACKEND_DEPTH_NOISE_SCALE;

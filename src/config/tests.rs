@@ -139,31 +139,39 @@ fn a_value_out_of_range_is_named_by_its_key_with_the_allowed_range() {
     }
 }
 
-/// The odometry alone weighs its measurements as the back end does (its documented
-/// reason), so a change to one of the two noise models shows here.
+/// The SLAM's odometry and the odometry alone weigh their measurements as bundle adjustment
+/// does (their documented reason): 2 mm of isotropic noise, and depth trusted 3 times less
+/// than the sensor model, applied once (in the odometry's covariances, which the back end
+/// receives), so a change to one of the noise models shows here. The pose graph keeps the
+/// odometry's own model.
 #[test]
-fn the_odometry_alone_uses_the_back_ends_noise_model() {
-    let vo = VoConfig::odometry_only();
-    let backend = BackendConfig::default();
-    vo.validate().unwrap();
-    assert_eq!(vo.model_noise_m, backend.model_noise_m);
+fn the_odometry_and_bundle_adjustment_share_one_noise_model() {
+    let slam = Config::default();
+    let backend = slam.backend.clone().unwrap();
+    let trust = BackendConfig::default().depth_noise_scale;
+    assert_eq!(backend.mode, BackendMode::BundleAdjustment);
+    assert_eq!(slam.odometry.model_noise_m, backend.model_noise_m);
     for depth_m in [0.5, 1.5, 4.0] {
-        let ratio = vo.uncertainty.sigma_d(depth_m) / backend.depth_model.sigma_d(depth_m);
+        let ratio =
+            slam.odometry.uncertainty.sigma_d(depth_m) / backend.depth_model.sigma_d(depth_m);
         assert!(
-            (ratio - backend.depth_noise_scale).abs() < 1e-9,
-            "depth {depth_m} m: sigma ratio {ratio}"
+            (ratio * backend.depth_noise_scale - trust).abs() < 1e-9,
+            "depth {depth_m} m: sigma ratio {ratio}, back end's scale {}",
+            backend.depth_noise_scale
         );
     }
-    // Only those and the keyframe rate differ from the SLAM's odometry.
-    let slam = VoConfig::default();
-    assert_ne!(vo.redetect_fraction, slam.redetect_fraction);
+    // The odometry alone differs from the SLAM's only in its keyframe rate.
+    let alone = VoConfig::odometry_only();
+    assert_ne!(alone.redetect_fraction, slam.odometry.redetect_fraction);
     let same = VoConfig {
-        redetect_fraction: slam.redetect_fraction,
-        model_noise_m: slam.model_noise_m,
-        uncertainty: slam.uncertainty,
-        ..vo
+        redetect_fraction: slam.odometry.redetect_fraction,
+        ..alone
     };
-    assert_eq!(same, slam);
+    assert_eq!(same, slam.odometry);
+    // The pose graph: the sensor's model in the odometry, the factor in the back end.
+    let pg = Config::defaults_for(Some(BackendMode::PoseGraph));
+    assert_eq!(pg.odometry, VoConfig::default());
+    assert_eq!(pg.backend.map(|b| b.depth_noise_scale), Some(trust));
 }
 
 /// A file read for the odometry alone keeps its settings where it is silent, takes the
@@ -186,11 +194,12 @@ fn a_file_for_the_odometry_alone_changes_only_the_keys_it_sets() {
         vo.uncertainty.depth_sigma_coeffs
     );
     assert_eq!(c.schedule, base.schedule);
-    // Over the SLAM's defaults the same file leaves the SLAM's noise model where it is silent.
+    // Over the SLAM's defaults the same file leaves the SLAM's keyframe rate where it is
+    // silent.
     let slam = Config::from_toml(text, "f.toml").unwrap();
     assert_eq!(
         slam.odometry.redetect_fraction,
-        VoConfig::default().redetect_fraction
+        Config::default().odometry.redetect_fraction
     );
     let err = Config::from_toml_over("[odometry]\nmodel_noise = 1\n", "bad.toml", &base)
         .unwrap_err()

@@ -68,20 +68,9 @@ pub struct PipelineConfig {
 
 impl Default for PipelineConfig {
     /// The SLAM with bundle adjustment on the fixed (repeatable) schedule, the world from
-    /// the floor, and the elevation map.
+    /// the floor, and the elevation map: [`crate::Config::default`]'s settings.
     fn default() -> Self {
-        Self {
-            odometry: VoConfig::default(),
-            backend: Some((
-                BackendConfig::default(),
-                Schedule::Fixed {
-                    lag_frames: Schedule::DEFAULT_LAG_FRAMES,
-                },
-            )),
-            world: WorldPlan::Floor,
-            map: Some(TerrainConfig::default()),
-            saved_map: None,
-        }
+        crate::config::Config::default().pipeline(WorldPlan::Floor)
     }
 }
 

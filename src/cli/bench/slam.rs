@@ -145,8 +145,8 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
     }
     let decode_ms = median(frames.iter().map(|(_, d)| d * 1e3).collect());
     let config = match &a.config {
-        Some(path) => Config::load(path)?,
-        None => Config::default(),
+        Some(path) => Config::load_for(path, Some(a.backend.mode()))?.0,
+        None => Config::defaults_for(a.backend.mode()),
     };
     let mode = a.backend.mode();
     let with = |schedule| {
