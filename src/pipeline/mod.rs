@@ -68,7 +68,7 @@ pub struct PipelineConfig {
 
 impl Default for PipelineConfig {
     /// The SLAM with bundle adjustment on the fixed (repeatable) schedule, the world from
-    /// the floor, and the elevation map: [`crate::Config::default`]'s settings.
+    /// the floor, and the elevation map: [`crate::config::Config::default`]'s settings.
     fn default() -> Self {
         crate::config::Config::default().pipeline(WorldPlan::Floor)
     }
