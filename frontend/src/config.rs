@@ -104,6 +104,11 @@ pub struct VoConfig {
     pub keyframe_max_rotation_deg: f64,
     /// A frame-to-frame motion larger than this is rejected as a failure (m).
     pub max_step_translation_m: f64,
+    /// ... and so is one faster than this (m/s) over the time since the previous frame: a
+    /// camera on a robot does not jump 0.5 m in a frame interval, but a heavily blurred
+    /// frame's tracks can slide together and agree on such a jump. 5 m/s is 0.17 m at 30
+    /// Hz; across dropped frames `max_step_translation_m` bounds it.
+    pub max_speed_m_s: f64,
     /// A frame-to-frame rotation larger than this is rejected as a failure (degrees).
     pub max_step_rotation_deg: f64,
     /// With a gyroscope that measured the rotation since the previous frame
@@ -386,6 +391,12 @@ impl VoConfig {
             "positive (m)",
         )?;
         check(
+            "max_speed_m_s",
+            c.max_speed_m_s,
+            pos(c.max_speed_m_s),
+            "positive (m/s)",
+        )?;
+        check(
             "max_step_rotation_deg",
             c.max_step_rotation_deg,
             pos(c.max_step_rotation_deg),
@@ -518,6 +529,7 @@ impl Default for VoConfig {
             keyframe_max_translation_m: 0.3,
             keyframe_max_rotation_deg: 20.0,
             max_step_translation_m: 0.5,
+            max_speed_m_s: 5.0,
             max_step_rotation_deg: 45.0,
             max_gyroscope_disagreement_deg: 1.0,
             orb_descriptors: true,

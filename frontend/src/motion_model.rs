@@ -117,10 +117,46 @@ impl MotionModel {
     }
 }
 
+/// Whether an estimated frame-to-frame motion `prev_from_cur`, over `dt_s` (s) since the
+/// previous frame, is one a camera can make: at most `max_step_translation_m` and
+/// `max_step_rotation_deg`, and no faster than `max_speed_m_s` over the interval (an
+/// interval that is not positive is held to the step bounds alone).
+pub(crate) fn step_is_plausible(
+    prev_from_cur: &Isometry3<f64>,
+    dt_s: f64,
+    cfg: &crate::VoConfig,
+) -> bool {
+    let max_m = if dt_s > 0.0 {
+        cfg.max_step_translation_m.min(cfg.max_speed_m_s * dt_s)
+    } else {
+        cfg.max_step_translation_m
+    };
+    prev_from_cur.translation.vector.norm() <= max_m
+        && prev_from_cur.rotation.angle().to_degrees() <= cfg.max_step_rotation_deg
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Vector3;
+
+    /// A 0.2 m step is too fast for one frame interval at 30 Hz (6 m/s) but not after five
+    /// dropped frames; after 2 s of them the step bound still holds at 0.5 m.
+    #[test]
+    fn a_step_faster_than_the_speed_bound_is_implausible() {
+        let cfg = crate::VoConfig::default();
+        let along_z = |m: f64| Isometry3::new(Vector3::new(0.0, 0.0, m), Vector3::zeros());
+        assert!(step_is_plausible(&along_z(0.1), DT_S, &cfg));
+        assert!(!step_is_plausible(&along_z(0.2), DT_S, &cfg));
+        assert!(step_is_plausible(&along_z(0.2), 6.0 * DT_S, &cfg));
+        assert!(!step_is_plausible(&along_z(0.6), 2.0, &cfg));
+        assert!(step_is_plausible(&along_z(0.4), 0.0, &cfg));
+        let turn = Isometry3::new(Vector3::zeros(), Vector3::new(0.0, 1.0, 0.0));
+        assert!(
+            !step_is_plausible(&turn, DT_S, &cfg),
+            "57 degrees in a frame"
+        );
+    }
 
     const DT_S: f64 = 1.0 / 30.0;
 

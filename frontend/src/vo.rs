@@ -314,8 +314,7 @@ impl VisualOdometry {
                 let candidate = e.ref_from_cur;
                 let step = self.world_from_prev.inverse() * candidate;
                 let plausible = is_finite(&candidate)
-                    && step.translation.vector.norm() <= cfg.max_step_translation_m
-                    && step.rotation.angle().to_degrees() <= cfg.max_step_rotation_deg
+                    && crate::motion_model::step_is_plausible(&step, frame.t_s - self.prev_t, &cfg)
                     && !self.disagrees_with_gyroscope(&step, gyro_rotation.as_ref());
                 if plausible {
                     world_from_cur = candidate;
