@@ -140,6 +140,8 @@ mod tests {
     use super::*;
     use nalgebra::Vector3;
 
+    const DT_S: f64 = 1.0 / 30.0;
+
     /// A 0.2 m step is too fast for one frame interval at 30 Hz (6 m/s) but not after five
     /// dropped frames; after 2 s of them the step bound still holds at 0.5 m.
     #[test]
@@ -157,8 +159,6 @@ mod tests {
             "57 degrees in a frame"
         );
     }
-
-    const DT_S: f64 = 1.0 / 30.0;
 
     /// A screw along the optical axis: 4 mm forward and 0.01 rad about it per frame (the two
     /// commute, so `n` frames move exactly `n` times as far and turn `n` times as much).
