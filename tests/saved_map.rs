@@ -189,7 +189,8 @@ fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
     let load = ["--camera", "fr3", "--no-map", "--load-map", map_arg];
     let (two, log) = common::run_logged("run", &later, &tmp.path().join("two"), &load);
     // Measured: ATE 4.7 mm (5.4 mm, relocalized by 41 inliers, before the odometry took
-    // the back end's noise model); the saved keyframes' mapped features alone (the tracking's corners, 20-60 a keyframe) matched 24 at most.
+    // the back end's noise model); the saved keyframes' mapped features alone (the
+    // tracking's corners, 20-60 a keyframe) matched 24 at most.
     assert_eq!(two["relocalizations"], 1, "{two}\n{log}");
     assert_eq!(two["frames_lost"], 0, "{two}");
     assert!(common::num(&two["ate"], "rmse") < 0.008, "{two}");
@@ -198,7 +199,8 @@ fn the_saved_place_features_place_a_later_start_and_close_loops_with_the_map() {
     // Saved again, the map leaves that piece out and keeps its own keyframes and points:
     // the piece matched only its own points (the map around the guessed pose is not what
     // the camera saw), so none of the map's was counted unseen and culled. Measured: 29
-    // keyframes, 541 of 605-607 points (the 66 seen by one keyframe go in any run in the map);
+    // keyframes, 541 of 605-607 points (the 64-66 seen by one keyframe go in any run in the
+    // map);
     // a run from frame 140 on, matching the map around the guess, left 365.
     let again = tmp.path().join("again.map.json");
     let (old_arg, again_arg) = (old.to_str().unwrap(), again.to_str().unwrap());
