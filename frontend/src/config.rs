@@ -21,8 +21,11 @@ pub enum InlierTest {
     },
 }
 
-/// Parameters of [`crate::VisualOdometry`]. The defaults are those of the full SLAM (with a
-/// back end); [`VoConfig::odometry_only`] those of the odometry alone.
+/// Parameters of [`crate::VisualOdometry`]. The defaults weigh measurements by the sensor
+/// model with 2 cm of isotropic noise (the pose graph's odometry);
+/// [`VoConfig::with_backend_noise_model`] gives the SLAM with bundle adjustment's
+/// (`stride::Config::default`, with the back end's `depth_noise_scale` at 1) and
+/// [`VoConfig::odometry_only`] those of the odometry alone.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct VoConfig {
