@@ -461,12 +461,12 @@ impl VoConfig {
     /// The pose graph with it: teddy_200 10.5 -> 6.3, from frames 5, 10, 20, 30 11.8 / 15.1 /
     /// 13.3 / 9.7 -> 5.9 / 5.8 / 7.0 / 5.7, every 5th frame 14.5 -> 5.3, a 600-frame
     /// pingpong 13.5 -> 6.4, but blurred by 5 px 9.0 -> 25.7 (Sim(3) scale 0.97: too large)
-    /// and by 25 px 19.9 -> 25.1. Bundle adjustment (with the back end's depth inflation at 1, so as not
-    /// to apply it twice), final / live ATE: teddy_200 from frames 0, 5, 10, 20, 30 (seeds
-    /// 1-3) 6.87 / 6.82 -> 6.24 / 5.67 in the mean (from frame 0 alone 4.5 / 5.4 -> 6.9 /
-    /// 5.5), every 10th frame 5.1 / 11.2 -> 4.1 / 4.0, blurred by 25 px 19.2 / 19.8 -> 14.6
-    /// / 13.7, by 5 px (seeds 1-5) 8.0 / 7.8 -> 7.6 / 10.0, five synthetic walks 14-43 %
-    /// lower.
+    /// and by 25 px 19.9 -> 25.1. Bundle adjustment (with the back end's depth inflation at
+    /// 1, so as not to apply it twice), final / live ATE: teddy_200 from frames 0, 5, 10,
+    /// 20, 30 (seeds 1-3) 6.87 / 6.82 -> 6.24 / 5.67 in the mean (from frame 0 alone 4.5 /
+    /// 5.4 -> 6.9 / 5.5), every 10th frame 5.1 / 11.2 -> 4.1 / 4.0, blurred by 25 px 19.2 /
+    /// 19.8 -> 14.6 / 13.7, by 5 px (seeds 1-5) 8.0 / 7.8 -> 7.6 / 10.0, five synthetic
+    /// walks 14-43 % lower.
     pub fn with_backend_noise_model(self) -> Self {
         let [k1, k2, k3, k4] = self.uncertainty.depth_sigma_coeffs;
         let k = BACKEND_DEPTH_NOISE_SCALE;

@@ -11,7 +11,7 @@ use std::time::Instant;
 use stride::config::Config;
 use stride::pipeline::run_sequence;
 use stride::pipeline::world::WorldPlan;
-use stride_backend::{BackendConfig, BackendMode, SavedMap};
+use stride_backend::{BackendMode, SavedMap};
 use stride_datasets::mcap::McapTopics;
 use stride_datasets::sequence::Sequence;
 use stride_datasets::tum::AssociationOptions;
@@ -257,8 +257,7 @@ impl RunArgs {
         if no_backend {
             c.backend = None;
         } else if let Some(mode) = mode {
-            let b = c.backend.get_or_insert_with(BackendConfig::default);
-            b.mode = mode;
+            c.backend = Some(c.backend_in(mode));
         }
         if let Some(seed) = self.seed {
             c.odometry.seed = seed;

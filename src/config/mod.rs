@@ -201,6 +201,18 @@ impl Config {
         }
     }
 
+    /// The back end to run in `mode`: this configuration's with its mode set, or, when it
+    /// has none (a file's `backend = false` under a command that asks for one), the defaults
+    /// for `mode` ([`Config::defaults_for`]), whose depth weighting matches the odometry's.
+    pub fn backend_in(&self, mode: BackendMode) -> BackendConfig {
+        let base = self
+            .backend
+            .clone()
+            .or_else(|| Self::defaults_for(Some(mode)).backend)
+            .unwrap_or_default();
+        BackendConfig { mode, ..base }
+    }
+
     /// The configuration as TOML (every key, the values in use).
     pub fn to_toml(&self) -> Result<String, PipelineError> {
         toml::to_string(self).map_err(|e| PipelineError::ConfigFile {

@@ -231,3 +231,26 @@ fn the_defaults_follow_the_back_end() {
     let c = Config::from_toml_over("backend = false\n", "alone.toml", &alone).unwrap();
     assert_eq!(c, alone);
 }
+
+/// A command that asks for a back end the file turned off gets that back end's defaults,
+/// weighted for the odometry they come with; a configured back end keeps its settings.
+#[test]
+fn a_back_end_asked_for_takes_its_modes_defaults() {
+    let off = Config::from_toml("backend = false\n", "off.toml").unwrap();
+    assert_eq!(
+        off.backend_in(BackendMode::BundleAdjustment),
+        Config::default().backend.unwrap()
+    );
+    assert_eq!(
+        off.backend_in(BackendMode::PoseGraph),
+        Config::defaults_for(Some(BackendMode::PoseGraph))
+            .backend
+            .unwrap()
+    );
+    let mut c = Config::default();
+    if let Some(b) = c.backend.as_mut() {
+        b.window_keyframes = 7;
+    }
+    let pg = c.backend_in(BackendMode::PoseGraph);
+    assert_eq!((pg.mode, pg.window_keyframes), (BackendMode::PoseGraph, 7));
+}

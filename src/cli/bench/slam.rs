@@ -149,15 +149,7 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
         None => Config::defaults_for(a.backend.mode()),
     };
     let mode = a.backend.mode();
-    let with = |schedule| {
-        mode.map(|mode| {
-            let c = BackendConfig {
-                mode,
-                ..config.backend.clone().unwrap_or_default()
-            };
-            (c, schedule)
-        })
-    };
+    let with = |schedule| mode.map(|mode| (config.backend_in(mode), schedule));
     let fixed = with(Schedule::Fixed {
         lag_frames: config.schedule.lag_frames,
     });
