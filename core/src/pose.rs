@@ -44,8 +44,9 @@ const UNIT_NORM_TOLERANCE: f64 = 8.0 * f64::EPSILON;
 /// Builds a pose from a translation (metres) and a quaternion in TUM order `(qx, qy, qz, qw)`.
 ///
 /// The quaternion is normalised, unless its norm is already 1 within a few rounding steps:
-/// then it is kept digit for digit, so that a pose read and written again is unchanged. Returns the pose and the quaternion's norm before
-/// normalisation, so that callers can warn about quaternions far from unit length.
+/// then it is kept digit for digit, so that a pose read and written again is unchanged.
+/// Returns the pose and the quaternion's norm before normalisation, so that callers can warn
+/// about quaternions far from unit length.
 pub fn pose_from_translation_quaternion(
     t_m: [f64; 3],
     q_xyzw: [f64; 4],
