@@ -104,25 +104,12 @@ fn out_of_range(key: String, value: String, allowed: &'static str) -> PipelineEr
 }
 
 impl Config {
-    /// Parses a TOML configuration (the text of `path`, named in errors) and checks every
-    /// value.
+    /// Parses a TOML configuration (the text of `path`, named in errors) over
+    /// [`Config::default`] and checks every value: a key the text leaves out keeps its value
+    /// there, also inside a section the text opens (the SLAM's odometry and back end differ
+    /// from [`VoConfig::default`] and [`BackendConfig::default`]).
     pub fn from_toml(text: &str, path: &str) -> Result<Self, PipelineError> {
-        let config: Config = toml::from_str(text).map_err(|e| PipelineError::ConfigFile {
-            path: path.to_owned(),
-            message: parse_message(&e.to_string()),
-        })?;
-        config.validate().map_err(|e| match e {
-            PipelineError::Config {
-                key,
-                value,
-                allowed,
-            } => PipelineError::ConfigFile {
-                path: path.to_owned(),
-                message: format!("{key} = {value}: {allowed}"),
-            },
-            other => other,
-        })?;
-        Ok(config)
+        Self::from_toml_over(text, path, &Config::default())
     }
 
     /// Reads and checks the configuration file at `path`.
@@ -142,32 +129,33 @@ impl Config {
         let (text, name) = read(path)?;
         let parsed = Self::from_toml(&text, &name)?;
         let mode = mode.unwrap_or_else(|| parsed.backend.as_ref().map(|b| b.mode));
-        let config = Self::over(parsed, &text, &name, &Self::defaults_for(mode))?;
+        let config = Self::from_toml_over(&text, &name, &Self::defaults_for(mode))?;
         Ok((config, mode))
     }
 
     /// [`Config::from_toml`], with the keys the text leaves out taken from `base`.
     pub fn from_toml_over(text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
-        // Parsed on the defaults first: its errors name the key and line in the file.
-        let parsed = Self::from_toml(text, path)?;
-        Self::over(parsed, text, path, base)
-    }
-
-    /// `text` (already `parsed` on the defaults, so free of errors a file can have) with
-    /// the keys it leaves out taken from `base`.
-    fn over(parsed: Config, text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
-        if *base == Config::default() {
-            return Ok(parsed);
-        }
         let file_error = |message: String| PipelineError::ConfigFile {
             path: path.to_owned(),
             message,
         };
+        // Parsed on its own first: serde's errors name the key and the line in the file,
+        // which the merged value below no longer knows.
+        toml::from_str::<Config>(text).map_err(|e| file_error(parse_message(&e.to_string())))?;
         let mut merged = toml::Value::try_from(base).map_err(|e| file_error(e.to_string()))?;
         let file: toml::Value = toml::from_str(text).map_err(|e| file_error(e.to_string()))?;
         overlay(&mut merged, file);
-        let config: Config = merged.try_into().map_err(|e| file_error(e.to_string()))?;
-        config.validate()?;
+        let config: Config = merged
+            .try_into()
+            .map_err(|e: toml::de::Error| file_error(parse_message(&e.to_string())))?;
+        config.validate().map_err(|e| match e {
+            PipelineError::Config {
+                key,
+                value,
+                allowed,
+            } => file_error(format!("{key} = {value}: {allowed}")),
+            other => other,
+        })?;
         Ok(config)
     }
 
@@ -277,10 +265,13 @@ fn read(path: &std::path::Path) -> Result<(String, String), PipelineError> {
 }
 
 /// Writes `over`'s keys into `base`, table by table: a key `over` leaves out keeps `base`'s
-/// value.
+/// value. A table that names a different `kind` (a variant of an enum, such as the
+/// odometry's inlier test) replaces `base`'s whole, since the variants' keys differ.
 fn overlay(base: &mut toml::Value, over: toml::Value) {
     match (base, over) {
-        (toml::Value::Table(b), toml::Value::Table(o)) => {
+        (toml::Value::Table(b), toml::Value::Table(o))
+            if o.get("kind").is_none() || o.get("kind") == b.get("kind") =>
+        {
             for (key, value) in o {
                 match b.get_mut(&key) {
                     Some(slot) => overlay(slot, value),

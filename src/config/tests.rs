@@ -210,6 +210,24 @@ fn a_file_for_the_odometry_alone_changes_only_the_keys_it_sets() {
     );
 }
 
+/// A file that opens a section and sets one key keeps [`Config::default`]'s value for every
+/// other key of that section, not the section type's own default: the SLAM's odometry
+/// (2 mm of model noise, depth trusted 3 times less) and its back end (depth weight 1)
+/// differ from [`VoConfig::default`] and [`BackendConfig::default`], and a file that only
+/// turned one link off once swapped the whole noise model unseen.
+#[test]
+fn a_section_a_file_opens_keeps_the_slams_defaults_where_the_file_is_silent() {
+    let text = "[odometry]\nkeyframe_depth_link_inliers = 0\n[backend]\nwindow_keyframes = 9\n";
+    let c = Config::from_toml(text, "s.toml").unwrap();
+    let mut expected = Config::default();
+    expected.odometry.keyframe_depth_link_inliers = 0;
+    if let Some(b) = expected.backend.as_mut() {
+        b.window_keyframes = 9;
+    }
+    assert_ne!(expected, Config::default());
+    assert_eq!(c, expected);
+}
+
 /// The odometry alone has its own defaults; the back ends share the SLAM's.
 #[test]
 fn the_defaults_follow_the_back_end() {
