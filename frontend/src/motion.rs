@@ -33,6 +33,9 @@ pub struct MotionParams {
     pub confidence: f64,
     /// Most RANSAC iterations.
     pub max_iterations: usize,
+    /// Fewest RANSAC iterations, whatever the adaptive count says (see
+    /// [`crate::VoConfig::ransac_min_iterations`]).
+    pub min_iterations: usize,
     /// Fewest inliers accepted.
     pub min_inliers: usize,
     /// Gauss-Newton iterations.
@@ -49,6 +52,7 @@ impl MotionParams {
             test: c.inlier_test,
             confidence: c.ransac_confidence,
             max_iterations: c.ransac_max_iterations,
+            min_iterations: c.ransac_min_iterations,
             min_inliers: c.min_inliers,
             refine_iterations: c.refine_iterations,
             model_noise_m: c.model_noise_m,
@@ -107,13 +111,15 @@ pub(crate) fn is_inlier(
 
 /// Inlier count and truncated cost of a hypothesis (MSAC): each inlier contributes its
 /// squared distance (Mahalanobis, or Euclidean over the bound, scaled to the same bound),
-/// each outlier the bound.
+/// each outlier the bound. `None` as soon as the cost exceeds `give_up_above` (the best
+/// cost so far: such a hypothesis cannot win, since the cost only grows).
 fn msac(
     corrs: &[Correspondence],
     t: &Isometry3<f64>,
     test: InlierTest,
     model_noise_m: f64,
-) -> (usize, f64) {
+    give_up_above: f64,
+) -> Option<(usize, f64)> {
     let (mut count, mut score) = (0, 0.0);
     for c in corrs {
         let (d, bound) = match test {
@@ -131,8 +137,11 @@ fn msac(
         } else {
             score += bound;
         }
+        if score > give_up_above {
+            return None;
+        }
     }
-    (count, score)
+    Some((count, score))
 }
 
 fn fit(corrs: &[Correspondence], idx: impl Iterator<Item = usize>) -> Option<Isometry3<f64>> {
@@ -169,6 +178,7 @@ pub fn ransac(
         test,
         confidence,
         max_iterations,
+        min_iterations,
         min_inliers,
         model_noise_m,
         ..
@@ -179,11 +189,13 @@ pub fn ransac(
     }
     // MSAC: hypotheses are ranked by their truncated cost (each correspondence's squared
     // Mahalanobis distance, or the bound for an outlier), which prefers the hypothesis
-    // that fits its inliers best among those with as many inliers.
+    // that fits its inliers best among those with as many inliers. The adaptive count
+    // trusts the best inlier ratio so far; `min_iterations` keeps drawing when a cluster
+    // of wrong correspondences that agree with each other got there first.
     let mut best: Option<(Isometry3<f64>, usize, f64)> = None;
     let mut needed = max_iterations;
     let mut it = 0;
-    while it < needed.min(max_iterations) {
+    while it < needed.max(min_iterations).min(max_iterations) {
         it += 1;
         let a = rng.below(n);
         let mut b = rng.below(n);
@@ -197,8 +209,11 @@ pub fn ransac(
         let Some(t) = fit(corrs, [a, b, c].into_iter()) else {
             continue;
         };
-        let (count, score) = msac(corrs, &t, test, model_noise_m);
-        if best.as_ref().is_none_or(|(_, _, bs)| score < *bs) {
+        let best_score = best.as_ref().map_or(f64::INFINITY, |(_, _, bs)| *bs);
+        let Some((count, score)) = msac(corrs, &t, test, model_noise_m, best_score) else {
+            continue;
+        };
+        if score < best_score {
             best = Some((t, count, score));
             // Adaptive iteration count for the best inlier ratio so far.
             let w = count as f64 / n as f64;
@@ -369,6 +384,7 @@ mod tests {
             test,
             confidence: 0.999,
             max_iterations: 300,
+            min_iterations: 0,
             min_inliers,
             refine_iterations: 10,
             model_noise_m: 0.0,
@@ -488,6 +504,29 @@ mod tests {
             &mut rng
         )
         .is_none());
+    }
+
+    #[test]
+    fn the_search_draws_at_least_min_iterations_samples() {
+        let mut rng = SplitMix64::new(4);
+        let pts = scene(100, &mut rng);
+        // Every correspondence exact: the first sample is all inliers and the adaptive
+        // count stops there.
+        let corrs: Vec<_> = pts
+            .iter()
+            .map(|p| isotropic(*p, Point3::new(p.x + 0.01, p.y, p.z), 0.01))
+            .collect();
+        let p = params(InlierTest::Mahalanobis { chi2: 11.34 }, 12);
+        let quick = estimate(&corrs, &p, &mut SplitMix64::new(5)).unwrap();
+        assert!(quick.iterations < 5, "{}", quick.iterations);
+        let p = MotionParams {
+            min_iterations: 40,
+            ..p
+        };
+        let thorough = estimate(&corrs, &p, &mut SplitMix64::new(5)).unwrap();
+        assert_eq!(thorough.iterations, 40);
+        let moved = thorough.ref_from_cur.translation.vector - Vector3::new(-0.01, 0.0, 0.0);
+        assert!(moved.norm() < 1e-9, "{moved}");
     }
 
     #[test]
