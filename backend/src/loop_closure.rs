@@ -372,7 +372,10 @@ impl Backend {
             test: InlierTest::Mahalanobis { chi2: 11.34 },
             max_iterations: 1000,
             min_inliers: params.min_inliers,
-            model_noise_m: self.config.model_noise_m.max(0.005),
+            model_noise_m: self
+                .config
+                .model_noise_m
+                .max(stride_frontend::recovery::ORB_MIN_MODEL_NOISE_M),
             ..MotionParams::from_config(&stride_frontend::VoConfig::default())
         };
         let mut rng = SplitMix64::new(key(&[matched, id]));

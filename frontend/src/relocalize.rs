@@ -266,6 +266,9 @@ impl VisualOdometry {
         let params = MotionParams {
             max_iterations: RANSAC_ITERATIONS,
             min_inliers: config.recovery_min_inliers.max(MIN_INLIERS),
+            model_noise_m: config
+                .model_noise_m
+                .max(crate::recovery::ORB_MIN_MODEL_NOISE_M),
             ..MotionParams::from_config(config)
         };
         let mut best = None;
