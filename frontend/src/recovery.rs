@@ -63,7 +63,8 @@ pub(crate) const RANSAC_ITERATIONS: usize = 2000;
 /// viewpoint, at another pyramid level, sits a pixel or more from where the first keyframe
 /// saw it, which the 2 mm the tracking assumes for its sub-pixel tracks does not cover.
 /// With 2 mm, teddy_200 at every 20th frame lost frame 160 on 4 of 5 RANSAC seeds (19 of
-/// the 20 inliers needed); with 5 mm on none (ATE 6.9-8.9 mm). Loop closure uses the same.
+/// the 20 inliers needed); with 5 mm on none (ATE 6.9-8.9 mm; 6.1-8.1 mm once a weak
+/// pose needed three times its inliers to be replaced). Loop closure uses the same.
 pub const ORB_MIN_MODEL_NOISE_M: f64 = 0.005;
 
 /// A feature of a saved map's keyframe: one that observes a map point, or one of the
