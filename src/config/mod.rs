@@ -133,7 +133,9 @@ impl Config {
         Ok((config, mode))
     }
 
-    /// [`Config::from_toml`], with the keys the text leaves out taken from `base`.
+    /// [`Config::from_toml`], with the keys the text leaves out taken from `base`. A back
+    /// end the text configures where `base` has none takes the keys it leaves out from the
+    /// defaults of its mode ([`Config::defaults_for`]).
     pub fn from_toml_over(text: &str, path: &str, base: &Config) -> Result<Self, PipelineError> {
         let file_error = |message: String| PipelineError::ConfigFile {
             path: path.to_owned(),
@@ -141,9 +143,14 @@ impl Config {
         };
         // Parsed on its own first: serde's errors name the key and the line in the file,
         // which the merged value below no longer knows.
-        toml::from_str::<Config>(text).map_err(|e| file_error(parse_message(&e.to_string())))?;
-        let mut merged = toml::Value::try_from(base).map_err(|e| file_error(e.to_string()))?;
+        let parsed: Config =
+            toml::from_str(text).map_err(|e| file_error(parse_message(&e.to_string())))?;
         let file: toml::Value = toml::from_str(text).map_err(|e| file_error(e.to_string()))?;
+        let mut base = base.clone();
+        if base.backend.is_none() && file.get("backend").is_some_and(toml::Value::is_table) {
+            base.backend = Self::defaults_for(parsed.backend.map(|b| b.mode)).backend;
+        }
+        let mut merged = toml::Value::try_from(&base).map_err(|e| file_error(e.to_string()))?;
         overlay(&mut merged, file);
         let config: Config = merged
             .try_into()

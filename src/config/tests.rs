@@ -228,6 +228,26 @@ fn a_section_a_file_opens_keeps_the_slams_defaults_where_the_file_is_silent() {
     assert_eq!(c, expected);
 }
 
+/// A back end a file configures over a base without one (the odometry alone's) takes its
+/// mode's defaults for the keys the file leaves out, not `BackendConfig::default()`'s.
+#[test]
+fn a_back_end_a_file_adds_takes_its_modes_defaults() {
+    let base = Config::odometry_alone();
+    let c = Config::from_toml_over("[backend]\nwindow_keyframes = 9\n", "b.toml", &base).unwrap();
+    let expected = BackendConfig {
+        window_keyframes: 9,
+        ..Config::default().backend.unwrap()
+    };
+    assert_eq!(c.backend, Some(expected));
+    assert_eq!(c.odometry, base.odometry);
+    let pg = "[backend]\nmode = \"pose_graph\"\n";
+    let c = Config::from_toml_over(pg, "pg.toml", &base).unwrap();
+    assert_eq!(
+        c.backend,
+        Config::defaults_for(Some(BackendMode::PoseGraph)).backend
+    );
+}
+
 /// The odometry alone has its own defaults; the back ends share the SLAM's.
 #[test]
 fn the_defaults_follow_the_back_end() {
