@@ -506,16 +506,20 @@ mod tests {
         .is_none());
     }
 
-    #[test]
-    fn the_search_draws_at_least_min_iterations_samples() {
+    /// 100 scene points seen 1 cm further along x, every correspondence exact.
+    fn shifted_scene() -> Vec<Correspondence> {
         let mut rng = SplitMix64::new(4);
-        let pts = scene(100, &mut rng);
-        // Every correspondence exact: the first sample is all inliers and the adaptive
-        // count stops there.
-        let corrs: Vec<_> = pts
+        scene(100, &mut rng)
             .iter()
             .map(|p| isotropic(*p, Point3::new(p.x + 0.01, p.y, p.z), 0.01))
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn the_search_draws_at_least_min_iterations_samples() {
+        // Every correspondence exact: the first sample is all inliers and the adaptive
+        // count stops there.
+        let corrs = shifted_scene();
         let p = params(InlierTest::Mahalanobis { chi2: 11.34 }, 12);
         let quick = estimate(&corrs, &p, &mut SplitMix64::new(5)).unwrap();
         assert!(quick.iterations < 5, "{}", quick.iterations);
@@ -531,12 +535,7 @@ mod tests {
 
     #[test]
     fn same_seed_same_result() {
-        let mut rng = SplitMix64::new(4);
-        let pts = scene(100, &mut rng);
-        let corrs: Vec<_> = pts
-            .iter()
-            .map(|p| isotropic(*p, Point3::new(p.x + 0.01, p.y, p.z), 0.01))
-            .collect();
+        let corrs = shifted_scene();
         let p = params(InlierTest::Mahalanobis { chi2: 11.34 }, 12);
         let a = estimate(&corrs, &p, &mut SplitMix64::new(5)).unwrap();
         let b = estimate(&corrs, &p, &mut SplitMix64::new(5)).unwrap();

@@ -67,6 +67,18 @@ pub(crate) const RANSAC_ITERATIONS: usize = 2000;
 /// pose needed three times its inliers to be replaced). Loop closure uses the same.
 pub const ORB_MIN_MODEL_NOISE_M: f64 = 0.005;
 
+/// RANSAC settings for a pose from ORB matches (recovery, relocalization): `config`'s,
+/// with [`RANSAC_ITERATIONS`] at most, [`ORB_MIN_MODEL_NOISE_M`] of noise at least and
+/// `min_inliers` inliers.
+pub(crate) fn orb_motion_params(config: &VoConfig, min_inliers: usize) -> MotionParams {
+    MotionParams {
+        max_iterations: RANSAC_ITERATIONS,
+        min_inliers,
+        model_noise_m: config.model_noise_m.max(ORB_MIN_MODEL_NOISE_M),
+        ..MotionParams::from_config(config)
+    }
+}
+
 /// A feature of a saved map's keyframe: one that observes a map point, or one of the
 /// keyframe's place features.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -418,12 +430,7 @@ impl VisualOdometry {
             &self.shutter,
             config,
         )?;
-        let params = MotionParams {
-            max_iterations: RANSAC_ITERATIONS,
-            min_inliers: config.recovery_min_inliers.max(at_least + 1),
-            model_noise_m: config.model_noise_m.max(ORB_MIN_MODEL_NOISE_M),
-            ..MotionParams::from_config(config)
-        };
+        let params = orb_motion_params(config, config.recovery_min_inliers.max(at_least + 1));
         let mut best = None;
         for kf in keyframes.iter_mut().rev() {
             if kf.points.is_none() {

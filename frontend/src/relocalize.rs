@@ -31,11 +31,10 @@
 use crate::error::FrontendError;
 use crate::features::OrbDescriptor;
 use crate::klt::Pyramid;
-use crate::motion::MotionParams;
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
-    estimate_against, keep_best, match_points, orb_points, Anchor, AnchorKeyframe, OrbPoint,
-    Recovered, RANSAC_ITERATIONS, SPACING_M, SPACING_RAD,
+    estimate_against, keep_best, match_points, orb_motion_params, orb_points, Anchor,
+    AnchorKeyframe, OrbPoint, Recovered, SPACING_M, SPACING_RAD,
 };
 use crate::result::{OdometryLink, PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
@@ -272,14 +271,7 @@ impl VisualOdometry {
                 });
             }
         }
-        let params = MotionParams {
-            max_iterations: RANSAC_ITERATIONS,
-            min_inliers: config.recovery_min_inliers.max(MIN_INLIERS),
-            model_noise_m: config
-                .model_noise_m
-                .max(crate::recovery::ORB_MIN_MODEL_NOISE_M),
-            ..MotionParams::from_config(config)
-        };
+        let params = orb_motion_params(config, config.recovery_min_inliers.max(MIN_INLIERS));
         let mut best = None;
         let most_matches = {
             let ranked = self.places.candidates(&query);

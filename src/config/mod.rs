@@ -127,8 +127,10 @@ impl Config {
         mode: Option<Option<BackendMode>>,
     ) -> Result<(Self, Option<BackendMode>), PipelineError> {
         let (text, name) = read(path)?;
-        let parsed = Self::from_toml(&text, &name)?;
-        let mode = mode.unwrap_or_else(|| parsed.backend.as_ref().map(|b| b.mode));
+        let mode = match mode {
+            Some(m) => m,
+            None => Self::from_toml(&text, &name)?.backend.map(|b| b.mode),
+        };
         let config = Self::from_toml_over(&text, &name, &Self::defaults_for(mode))?;
         Ok((config, mode))
     }

@@ -144,11 +144,11 @@ pub fn bench_vo(a: VoBenchArgs) -> Result<()> {
         frames.push((f, t.elapsed().as_secs_f64()));
     }
     let decode_ms = median(frames.iter().map(|(_, d)| d * 1e3).collect());
-    let config = match &a.config {
-        Some(path) => Config::load_for(path, Some(a.backend.mode()))?.0,
-        None => Config::defaults_for(a.backend.mode()),
-    };
     let mode = a.backend.mode();
+    let config = match &a.config {
+        Some(path) => Config::load_for(path, Some(mode))?.0,
+        None => Config::defaults_for(mode),
+    };
     let with = |schedule| mode.map(|mode| (config.backend_in(mode), schedule));
     let fixed = with(Schedule::Fixed {
         lag_frames: config.schedule.lag_frames,
