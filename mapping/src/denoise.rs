@@ -125,14 +125,15 @@ impl Smoother {
             .zip(self.tol.par_chunks_mut(w))
             .zip(depth.as_slice().par_chunks(w))
             .for_each(|((q, tol), d)| {
-                for ((q, t), &d) in q.iter_mut().skip(r).zip(tol.iter_mut()).zip(d) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
-                    let inv = 1.0 / d;
-                    *q = if ok { inv } else { 0.0 };
-                    // |1/a - 1/d| for a depth `k sigma_d(d)` away from `d`, to first order.
-                    let t_ok = k * model.depth_sigma_f32(d) * inv * inv;
-                    *t = if ok { t_ok } else { 0.0 };
-                }
+                let q = q.get_mut(r..).unwrap_or(&mut []);
+                let pass: RowPass<'_, std::iter::Empty<_>, M> = RowPass::Invert {
+                    q,
+                    tol,
+                    d,
+                    k,
+                    model,
+                };
+                crate::simd::dispatch(pass);
             });
         let (inverse, tol) = (&self.inverse, &self.tol);
         // Along the rows.
@@ -151,7 +152,15 @@ impl Smoother {
                     )
                 });
                 let centre = row.get(r..r + w).unwrap_or(&[]);
-                mean_of_pairs(centre, t, pairs, dst.get_mut(r..r + w).unwrap_or(&mut []));
+                let dst = dst.get_mut(r..r + w).unwrap_or(&mut []);
+                let pass: RowPass<'_, _, M> = RowPass::Mean {
+                    centre,
+                    tol: t,
+                    pairs,
+                    dst,
+                    depth: None,
+                };
+                crate::simd::dispatch(pass);
             });
         let across = &self.across;
         // Along the columns, into depth.
@@ -163,13 +172,14 @@ impl Smoother {
                 let at = |y: usize| across.get(y * pw + r..y * pw + r + w).unwrap_or(&[]);
                 let t = tol.get(v * w..(v + 1) * w).unwrap_or(&[]);
                 let pairs = (1..=r).map(|dy| (at(v + r + dy), at(v + r - dy)));
-                mean_of_pairs(at(v + r), t, pairs, dst);
-                // A pixel without a return keeps its own value (0 or non-finite).
-                for (o, &d) in dst.iter_mut().zip(d) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
-                    let smoothed = 1.0 / *o;
-                    *o = if ok { smoothed } else { d };
-                }
+                let pass: RowPass<'_, _, M> = RowPass::Mean {
+                    centre: at(v + r),
+                    tol: t,
+                    pairs,
+                    dst,
+                    depth: Some(d),
+                };
+                crate::simd::dispatch(pass);
             });
         out
     }
@@ -180,9 +190,78 @@ impl Smoother {
     }
 }
 
+/// One row of one of [`Smoother::smooth`]'s passes, run by [`crate::simd::dispatch`] in
+/// the copy for this CPU's instruction set (the same results).
+enum RowPass<'a, P, M: ?Sized> {
+    /// The first pass: `q[i]` the inverse depth of `d[i]` (1/m, 0 without a return),
+    /// `tol[i]` the largest inverse-depth difference a neighbour may have (1/m): that of a
+    /// depth `k sigma_d(d)` away, to first order.
+    Invert {
+        q: &'a mut [f32],
+        tol: &'a mut [f32],
+        d: &'a [f32],
+        k: f32,
+        model: &'a M,
+    },
+    /// A pass along rows or columns: [`mean_of_pairs`]; with `depth` (the row's input
+    /// depths, m) the means are turned back into depths, and a pixel without a return
+    /// keeps its own value (0 or non-finite).
+    Mean {
+        centre: &'a [f32],
+        tol: &'a [f32],
+        pairs: P,
+        dst: &'a mut [f32],
+        depth: Option<&'a [f32]>,
+    },
+}
+
+impl<'a, P, M> pulp::WithSimd for RowPass<'a, P, M>
+where
+    P: Iterator<Item = (&'a [f32], &'a [f32])> + Clone,
+    M: HeightModel + ?Sized,
+{
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        match self {
+            RowPass::Invert {
+                q,
+                tol,
+                d,
+                k,
+                model,
+            } => {
+                for ((q, t), &d) in q.iter_mut().zip(tol.iter_mut()).zip(d) {
+                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    let inv = 1.0 / d;
+                    *q = if ok { inv } else { 0.0 };
+                    let t_ok = k * model.depth_sigma_f32(d) * inv * inv;
+                    *t = if ok { t_ok } else { 0.0 };
+                }
+            }
+            RowPass::Mean {
+                centre,
+                tol,
+                pairs,
+                dst,
+                depth,
+            } => {
+                mean_of_pairs(centre, tol, pairs, dst);
+                for (o, &d) in dst.iter_mut().zip(depth.unwrap_or(&[])) {
+                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    let smoothed = 1.0 / *o;
+                    *o = if ok { smoothed } else { d };
+                }
+            }
+        }
+    }
+}
+
 /// `dst[i]`: the mean of `centre[i]` and of each pair `(a[i], b[i])` whose two values are
 /// present (above 0) and within `tol[i]` of `centre[i]`; 0 where `centre[i]` is 0. In
 /// blocks whose accumulators stay on the stack, by loops the compiler vectorises.
+#[inline(always)]
 fn mean_of_pairs<'p>(
     centre: &[f32],
     tol: &[f32],

@@ -51,7 +51,44 @@ struct FlatRow {
 ///
 /// `CENTRALITY` (a constant, so that a mapper that does not use it pays nothing): whether
 /// each point records where in its cell it lies.
+///
+/// Runs the copy for this CPU's instruction set ([`crate::simd`]; the same results).
 pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
+    s: DepthSlice<'_, M>,
+    binning: (&CellBinner, bool),
+    lists: &mut [Vec<CellPoint>],
+    rej: &mut Rejections,
+) {
+    crate::simd::dispatch(BinSlice::<M, CENTRALITY> {
+        s,
+        binning,
+        lists,
+        rej,
+    });
+}
+
+/// The arguments of [`bin_depth_slice`], for [`crate::simd::dispatch`].
+struct BinSlice<'a, 'b, M: ?Sized, const CENTRALITY: bool> {
+    s: DepthSlice<'a, M>,
+    binning: (&'b CellBinner, bool),
+    lists: &'b mut [Vec<CellPoint>],
+    rej: &'b mut Rejections,
+}
+
+impl<M: HeightModel + ?Sized, const CENTRALITY: bool> pulp::WithSimd
+    for BinSlice<'_, '_, M, CENTRALITY>
+{
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        bin_depth_slice_body::<M, CENTRALITY>(self.s, self.binning, self.lists, self.rej);
+    }
+}
+
+/// The body of [`bin_depth_slice`], inlined into each instruction set's copy.
+#[inline(always)]
+fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
     (binner, smooth): (&CellBinner, bool),
     lists: &mut [Vec<CellPoint>],

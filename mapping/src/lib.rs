@@ -16,6 +16,7 @@
 //! * [`align`]: a frame laid onto the map before it is integrated (height and tilt), for
 //!   poses whose orientation is less exact than the map.
 //! * [`post`]: the median filter that fills small holes and removes isolated cells.
+//! * [`simd`]: the input stage's loops run compiled for AVX2 where the CPU has it.
 //! * [`error`]: what a mapper refuses to be built from (invalid parameters, inconsistent
 //!   frames); a mapper that exists has valid parameters.
 //!
@@ -39,6 +40,7 @@ mod neighbourhood;
 mod polar;
 pub mod post;
 pub mod range2d;
+pub mod simd;
 pub mod stack;
 pub mod stereo;
 pub mod window;

@@ -26,8 +26,20 @@ pub(crate) struct Neighbourhood {
 
 impl Neighbourhood {
     /// Fills the fields for row `v` of `depth` (`span` on request) in one pass over its five
-    /// rows, branch-free so that it vectorises.
+    /// rows, branch-free so that it vectorises (in the copy for this CPU's instruction set:
+    /// [`crate::simd`]; the same results).
     pub(crate) fn fill(&mut self, depth: &DepthImage, v: usize, span: bool) {
+        crate::simd::dispatch(Fill {
+            nb: self,
+            depth,
+            v,
+            span,
+        });
+    }
+
+    /// The body of [`Neighbourhood::fill`], inlined into each instruction set's copy.
+    #[inline(always)]
+    fn fill_body(&mut self, depth: &DepthImage, v: usize, span: bool) {
         const R: usize = 2;
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let px = depth.as_slice();
@@ -82,6 +94,23 @@ impl Neighbourhood {
     }
 }
 
+/// The arguments of [`Neighbourhood::fill`], for [`crate::simd::dispatch`].
+struct Fill<'a> {
+    nb: &'a mut Neighbourhood,
+    depth: &'a DepthImage,
+    v: usize,
+    span: bool,
+}
+
+impl pulp::WithSimd for Fill<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        self.nb.fill_body(self.depth, self.v, self.span);
+    }
+}
+
 /// The smaller of two depths that are never NaN (missing returns are infinity or 0 here):
 /// a plain comparison, which compiles to one vector instruction, where `f32::min`'s NaN
 /// rule adds a test and a blend per lane (docs/mapping.md, "Minimum and maximum without
@@ -107,6 +136,7 @@ fn max_of(a: f32, b: f32) -> f32 {
 
 /// `out[i] = pick` over `padded[i + k]` for `k` in `ks`, for `i` below `w`: each pass an
 /// element-wise `pick` of two slices, which vectorises.
+#[inline(always)]
 fn window_fold(
     out: &mut Vec<f32>,
     padded: &[f32],

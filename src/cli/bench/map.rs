@@ -29,6 +29,11 @@ pub struct MapBenchArgs {
     /// Time the stack mapper without its depth smoothing.
     #[arg(long)]
     no_depth_smoothing: bool,
+    /// Also time each mapper on the portable (x86-64-v2) copies of the vectorised loops,
+    /// taking turns with the others frame by frame, for the ratio to the copies this CPU
+    /// runs (AVX2 where present; the same maps: stride_mapping::simd).
+    #[arg(long)]
+    portable: bool,
     /// Python of a throwaway venv with pyoctomap and numpy: compare our maps with OctoMap
     /// on the same clouds (paper 000's Table 2) through scripts/peers/octomap_peer.py
     /// (never a project dependency), both mappers with their default settings. Ray casting
@@ -105,22 +110,41 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
         .sum::<f64>()
         / frames.len() as f64;
     use crate::cli::map::MapperArg;
-    let mut mappers: Vec<Box<dyn ElevationMapper>> = Vec::new();
+    // Each mapper with its name in the output and whether it runs the portable loops.
+    let mut mappers: Vec<(Box<dyn ElevationMapper>, &str, bool)> = Vec::new();
     if a.mapper != MapperArg::Fankhauser {
         let d = StackConfig::default();
-        mappers.push(Box::new(StackMapper::new(StackConfig {
+        let cfg = StackConfig {
             edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
             visibility_check: !a.no_visibility,
             see_through_check: !a.no_see_through,
             depth_smoothing: d.depth_smoothing.filter(|_| !a.no_depth_smoothing),
             ..d
-        })?));
+        };
+        if a.portable {
+            mappers.push((
+                Box::new(StackMapper::new(cfg.clone())?),
+                "stack_portable",
+                true,
+            ));
+        }
+        mappers.push((Box::new(StackMapper::new(cfg)?), "stack", false));
     }
     if a.mapper != MapperArg::Stack {
-        mappers.push(Box::new(
-            FankhauserMapper::new(FankhauserConfig::default())?,
+        if a.portable {
+            mappers.push((
+                Box::new(FankhauserMapper::new(FankhauserConfig::default())?),
+                "fankhauser_portable",
+                true,
+            ));
+        }
+        mappers.push((
+            Box::new(FankhauserMapper::new(FankhauserConfig::default())?),
+            "fankhauser",
+            false,
         ));
     }
+    let simd = stride_mapping::simd::instruction_set();
     let mut out = serde_json::Map::new();
     // The mappers take turns frame by frame, so that both see the same machine state (these
     // VMs drift by tens of percent within a minute); the ratio of medians is the figure to
@@ -133,13 +157,15 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
     for (f, pose) in &frames {
         let sf = SensorFrame::depth(&f.depth_m, &seq.camera.camera, *pose, f.t_depth_s)
             .with_context(|| format!("frame {}", f.index))?;
-        for (((m, t), u), ph) in mappers
+        for ((((m, _, portable), t), u), ph) in mappers
             .iter_mut()
             .zip(&mut times)
             .zip(&mut used)
             .zip(&mut phases)
         {
+            stride_mapping::simd::force_portable(*portable);
             let s = m.integrate(&sf);
+            stride_mapping::simd::force_portable(false);
             t.push(s.update_s);
             let [p, c] = ph;
             p.push(s.prepare_s);
@@ -155,24 +181,24 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
         "reference".into(),
         json!({"update_ms_median": ref_med * 1e3, "update_ms_p95": ref_p95 * 1e3, "threads": 1, "points_per_s": ref_used as f64 / ref_times.iter().sum::<f64>()}),
     );
-    for (((m, t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
+    for ((((_, name, _), t), u), [p, c]) in mappers.iter().zip(&times).zip(&used).zip(&phases) {
         let total: f64 = t.iter().sum();
         let (med, p95) = stride::pipeline::median_p95(t.iter().copied());
         let (pm, _) = stride::pipeline::median_p95(p.iter().copied());
         let (cm, _) = stride::pipeline::median_p95(c.iter().copied());
         out.insert(
-            m.name().into(),
+            (*name).into(),
             json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total}),
         );
     }
     if a.json {
         crate::outln!(
             "{}",
-            json!({"frames": frames.len(), "pixels_per_frame": frames[0].0.depth_m.as_slice().len(), "valid_depth_per_frame": valid, "threads": rayon::current_num_threads(), "mappers": out})
+            json!({"frames": frames.len(), "pixels_per_frame": frames[0].0.depth_m.as_slice().len(), "valid_depth_per_frame": valid, "threads": rayon::current_num_threads(), "instruction_set": simd, "mappers": out})
         )?;
         return Ok(());
     }
-    crate::outln!("{} frames of {} ({} pixels, {:.0} with depth on average), 1 cm cells, 4 x 4 m window, {} threads", frames.len(), dir.display(), frames[0].0.depth_m.as_slice().len(), valid, rayon::current_num_threads())?;
+    crate::outln!("{} frames of {} ({} pixels, {:.0} with depth on average), 1 cm cells, 4 x 4 m window, {} threads, {simd} loops", frames.len(), dir.display(), frames[0].0.depth_m.as_slice().len(), valid, rayon::current_num_threads())?;
     let g = |k: &str, f: &str| {
         out.get(k)
             .and_then(|v| v.get(f))
@@ -180,12 +206,18 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             .unwrap_or(f64::NAN)
     };
     // Only the mappers timed in this run (--mapper chooses them).
-    for k in ["stack", "fankhauser", "reference"]
-        .into_iter()
-        .filter(|k| out.contains_key(*k))
+    for k in [
+        "stack",
+        "stack_portable",
+        "fankhauser",
+        "fankhauser_portable",
+        "reference",
+    ]
+    .into_iter()
+    .filter(|k| out.contains_key(*k))
     {
         crate::outln!(
-            "{k:<11} update {:>7.2} ms median, {:>7.2} ms p95, {:.2e} points/s",
+            "{k:<19} update {:>7.2} ms median, {:>7.2} ms p95, {:.2e} points/s",
             g(k, "update_ms_median"),
             g(k, "update_ms_p95"),
             g(k, "points_per_s")
@@ -199,6 +231,8 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             .then(|| g(a, "update_ms_median") / g(b, "update_ms_median"))
     };
     for (a, b) in [
+        ("stack", "stack_portable"),
+        ("fankhauser", "fankhauser_portable"),
         ("stack", "reference"),
         ("fankhauser", "reference"),
         ("fankhauser", "stack"),
