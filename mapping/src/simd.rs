@@ -4,7 +4,7 @@
 //! that one binary runs on every x86-64 CPU since about 2009. The loops of the input stage
 //! (depth smoothing, the pixels' neighbourhoods, back-projection and binning) are written
 //! to vectorise; on a CPU with AVX2 and FMA they run a second copy of the same code
-//! compiled for it (8 lanes), chosen at each call by [`dispatch`] through `pulp` (faer's
+//! compiled for it (8 lanes), chosen at each call by `dispatch` through `pulp` (faer's
 //! SIMD layer, which the workspace already builds), so the project keeps no `unsafe` code.
 //! Both copies compute the same values bit for bit: the loops are element-wise (no float
 //! sum is reordered) and Rust never contracts a multiply and an add into an FMA on its
