@@ -330,3 +330,45 @@ fn columns_dropped_at_the_archive_cap_are_reported() {
     let full = map(&seq, &tmp.path().join("full"), &[]);
     assert_eq!(full["archive_dropped_cells"], 0, "{full}");
 }
+
+/// `stride bench map --portable` times each mapper on both copies of the vectorised loops in
+/// one run and says which copy the CPU runs; both copies used every measurement the same way
+/// (the maps themselves are compared bit for bit in stride_mapping::simd's test).
+#[test]
+fn the_map_bench_times_both_instruction_sets_in_one_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let seq = tmp.path().join("seq");
+    synth(&seq, &["--frames", "4", "--no-blur"]);
+    let out = run(&[
+        "bench",
+        "map",
+        "--dataset",
+        seq.to_str().unwrap(),
+        "--frames",
+        "4",
+        "--portable",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let set = j["instruction_set"].as_str().unwrap();
+    assert!(["avx2", "portable"].contains(&set), "{set}");
+    let m = &j["mappers"];
+    for k in [
+        "stack",
+        "stack_portable",
+        "fankhauser",
+        "fankhauser_portable",
+    ] {
+        let ms = num(&m[k], "update_ms_median");
+        assert!(ms > 0.0 && ms.is_finite(), "{k}: {ms} ms");
+    }
+    // Both copies of each mapper used the same measurements.
+    for (a, b) in [
+        ("stack", "stack_portable"),
+        ("fankhauser", "fankhauser_portable"),
+    ] {
+        let (ua, ub) = (num(&m[a], "points_used"), num(&m[b], "points_used"));
+        assert!(ua > 10_000.0 && ua == ub, "{a}: {ua} points, {b}: {ub}");
+    }
+}

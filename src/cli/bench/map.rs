@@ -188,7 +188,7 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
         let (cm, _) = stride::pipeline::median_p95(c.iter().copied());
         out.insert(
             (*name).into(),
-            json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total}),
+            json!({"update_ms_median": med * 1e3, "update_ms_p95": p95 * 1e3, "prepare_ms_median": pm * 1e3, "checks_ms_median": cm * 1e3, "points_per_s": *u as f64 / total, "points_used": *u}),
         );
     }
     if a.json {
