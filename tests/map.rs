@@ -349,7 +349,11 @@ fn the_map_bench_times_both_instruction_sets_in_one_run() {
         "--portable",
         "--json",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let set = j["instruction_set"].as_str().unwrap();
     assert!(["avx2", "portable"].contains(&set), "{set}");

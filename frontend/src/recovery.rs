@@ -456,19 +456,22 @@ impl VisualOdometry {
     }
 
     /// Places a lost frame by aligning its depth with the newest keyframe's
-    /// ([`crate::depth_align`]), starting at `world_from_pred`. `None` when depth alignment
-    /// is off, no keyframe's depth is kept, or the alignment is refused (logged). The frame
-    /// keeps no track: the keyframe it starts detects new corners.
+    /// ([`crate::depth_align`]), starting at `world_from_pred`, with the overlap it must
+    /// reach (`min_paired_fraction`; the alignment's own bound when `None`). `None` when
+    /// depth alignment is off, no keyframe's depth is kept, or the alignment is refused
+    /// (logged). The frame keeps no track: the keyframe it starts detects new corners.
     pub(crate) fn align_depth(
         &mut self,
         frame: &RgbdFrame,
         world_from_pred: &Isometry3<f64>,
+        min_paired_fraction: Option<f64>,
     ) -> Option<Recovered> {
         if !self.config.depth_alignment {
             return None;
         }
         let kf = self.recent.keyframes.back()?;
-        let params = DepthAlignParams::from_config(&self.config);
+        let mut params = DepthAlignParams::from_config(&self.config);
+        params.min_paired_fraction = min_paired_fraction.unwrap_or(params.min_paired_fraction);
         let a = self.align_with(frame, kf, kf.world_from_kf, *world_from_pred, &params)?;
         tracing::debug!(
             "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",

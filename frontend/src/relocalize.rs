@@ -31,6 +31,7 @@
 use crate::error::FrontendError;
 use crate::features::OrbDescriptor;
 use crate::klt::Pyramid;
+use crate::motion::{ransac, Correspondence, MotionParams};
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
     estimate_against, keep_best, match_points, orb_motion_params, orb_points, Anchor,
@@ -63,6 +64,16 @@ pub const MIN_INLIERS: usize = 30;
 /// frame took frame 10 from ORB matches on 2 of 5 seeds (8.4-8.5 mm against 4.1-4.5);
 /// with 3: seeds 1-5 4.3 mm, every 20th frame 8.4 -> 6.7 mm (live 19.2 -> 8.0).
 pub const WEAK_REPLACED_BY_INLIER_RATIO: usize = 3;
+/// Fewest tracks of a frame lost after dropped frames that must agree on a pose for it to
+/// start the depth alignment ([`VisualOdometry::search_by_appearance`]): too few to place
+/// the frame, enough for a start nearer than the motion model's extrapolation.
+pub const WEAK_GUESS_MIN_INLIERS: usize = 6;
+/// The overlap (a fraction of the frame's depth samples paired with the keyframe's surface)
+/// a depth alignment started at the tracks' pose must reach, below the alignment's own 0.4:
+/// the tracks and the depth agree, two cues where a start at the motion model's guess has
+/// one. After a second and a half of dropped frames the camera has moved about 0.45 m and
+/// the views share a third of their surface or less.
+pub const WEAK_GUESS_MIN_PAIRED_FRACTION: f64 = 0.3;
 
 /// The keyframes relocalization searches (see the module documentation).
 pub(crate) struct PlaceMemory {
@@ -206,7 +217,7 @@ impl VisualOdometry {
         gray_img: &GrayImage,
         lost: bool,
         inliers: usize,
-        world_from_pred: &Isometry3<f64>,
+        (world_from_pred, tracked): (&Isometry3<f64>, &[Correspondence]),
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
         if let Some(r) = self.recover(frame, pyr, WEAK_REPLACED_BY_INLIER_RATIO * inliers)? {
             return Ok(Some((r, TrackingStatus::Recovered)));
@@ -226,8 +237,22 @@ impl VisualOdometry {
                 Err(e) => return Err(e),
             }
         }
-        Ok(self
-            .align_depth(frame, world_from_pred)
+        // After dropped frames, the depth alignment starts where the frame's few tracks
+        // agree, if they do (the motion model's extrapolation over the gap can be far off),
+        // else at the motion model's guess (for an unbroken run of frames, a good start).
+        let after_gap = self
+            .motion_model
+            .across_gap(self.prev_t, frame.t_s)
+            .is_some();
+        let mut params = MotionParams::from_config(&self.config);
+        params.min_inliers = WEAK_GUESS_MIN_INLIERS;
+        let weak = after_gap
+            .then(|| ransac(tracked, &params, &mut self.rng))
+            .flatten()
+            .map(|(pose, ..)| pose);
+        Ok(weak
+            .and_then(|w| self.align_depth(frame, &w, Some(WEAK_GUESS_MIN_PAIRED_FRACTION)))
+            .or_else(|| self.align_depth(frame, world_from_pred, None))
             .map(|r| (r, TrackingStatus::DepthAligned)))
     }
 

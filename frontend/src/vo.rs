@@ -335,9 +335,14 @@ impl VisualOdometry {
         if status == TrackingStatus::Lost || inliers < cfg.keyframe_min_inliers {
             let t_w = Instant::now();
             let lost = status == TrackingStatus::Lost;
-            if let Some((r, how)) =
-                self.search_by_appearance(frame, &pyr, &gray_img, lost, inliers, &world_from_pred)?
-            {
+            if let Some((r, how)) = self.search_by_appearance(
+                frame,
+                &pyr,
+                &gray_img,
+                lost,
+                inliers,
+                (&world_from_pred, &corrs),
+            )? {
                 world_from_cur = r.world_from_cur;
                 (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
                 status = how;
