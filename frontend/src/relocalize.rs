@@ -65,7 +65,7 @@ pub const MIN_INLIERS: usize = 30;
 /// with 3: seeds 1-5 4.3 mm, every 20th frame 8.4 -> 6.7 mm (live 19.2 -> 8.0).
 pub const WEAK_REPLACED_BY_INLIER_RATIO: usize = 3;
 /// Fewest tracks of a frame lost after dropped frames that must agree on a pose for it to
-/// start the depth alignment ([`VisualOdometry::search_by_appearance`]): too few to place
+/// start the depth alignment (`VisualOdometry::search_by_appearance`): too few to place
 /// the frame, enough for a start nearer than the motion model's extrapolation.
 pub const WEAK_GUESS_MIN_INLIERS: usize = 6;
 /// The overlap (a fraction of the frame's depth samples paired with the keyframe's surface)
