@@ -240,10 +240,11 @@ impl VisualOdometry {
         // After dropped frames, the depth alignment starts where the frame's few tracks
         // agree, if they do (the motion model's extrapolation over the gap can be far off),
         // else at the motion model's guess (for an unbroken run of frames, a good start).
-        let after_gap = self
-            .motion_model
-            .across_gap(self.prev_t, frame.t_s)
-            .is_some();
+        let after_gap = self.config.depth_alignment
+            && self
+                .motion_model
+                .across_gap(self.prev_t, frame.t_s)
+                .is_some();
         let mut params = MotionParams::from_config(&self.config);
         params.min_inliers = WEAK_GUESS_MIN_INLIERS;
         let weak = after_gap
