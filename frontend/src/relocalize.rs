@@ -35,7 +35,7 @@ use crate::motion::{ransac, Correspondence, MotionParams};
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
     estimate_against, keep_best, match_points, orb_motion_params, orb_points, Anchor,
-    AnchorKeyframe, OrbPoint, Recovered, MAX_HAMMING, RATIO, SPACING_M, SPACING_RAD,
+    AnchorKeyframe, OrbPoint, Recovered, SPACING_M, SPACING_RAD,
 };
 use crate::result::{OdometryLink, PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
@@ -64,15 +64,6 @@ pub const MIN_INLIERS: usize = 30;
 /// frame took frame 10 from ORB matches on 2 of 5 seeds (8.4-8.5 mm against 4.1-4.5);
 /// with 3: seeds 1-5 4.3 mm, every 20th frame 8.4 -> 6.7 mm (live 19.2 -> 8.0).
 pub const WEAK_REPLACED_BY_INLIER_RATIO: usize = 3;
-/// The Hamming bound of a lost frame's last chance at recovery, tried after relocalization
-/// and the depth alignment from its tracks' pose (`VisualOdometry::search_by_appearance`):
-/// ORB-SLAM's looser bound. After a second or more of dropped frames the views differ by
-/// 0.4-0.6 m and 25-35 degrees and few matches pass the usual bounds (teddy_200 with 1.25 s
-/// dropped at 1 s: 8 at most, against 144 with these, 32 of them inliers); RANSAC, with
-/// its 2,000 draws and the same inlier count required, sorts out the rest.
-pub const LOST_MAX_HAMMING: u32 = 100;
-/// Lowe's ratio of a lost frame's last chance at recovery (see [`LOST_MAX_HAMMING`]).
-pub const LOST_RATIO: f64 = 0.95;
 /// Fewest tracks of a frame lost after dropped frames that must agree on a pose for it to
 /// start the depth alignment (`VisualOdometry::search_by_appearance`): too few to place
 /// the frame, enough for a start nearer than the motion model's extrapolation.
@@ -228,8 +219,7 @@ impl VisualOdometry {
         inliers: usize,
         (world_from_pred, tracked): (&Isometry3<f64>, &[Correspondence]),
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
-        let at_least = WEAK_REPLACED_BY_INLIER_RATIO * inliers;
-        if let Some(r) = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO))? {
+        if let Some(r) = self.recover(frame, pyr, WEAK_REPLACED_BY_INLIER_RATIO * inliers)? {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
         if !lost {
@@ -261,18 +251,9 @@ impl VisualOdometry {
             .then(|| ransac(tracked, &params, &mut self.rng))
             .flatten()
             .map(|(pose, ..)| pose);
-        if let Some(r) =
-            weak.and_then(|w| self.align_depth(frame, &w, Some(WEAK_GUESS_MIN_PAIRED_FRACTION)))
-        {
-            return Ok(Some((r, TrackingStatus::DepthAligned)));
-        }
-        // The last chances: ORB matches within looser bounds, then the depth alignment from
-        // the motion model's guess.
-        if let Some(r) = self.recover(frame, pyr, at_least, (LOST_MAX_HAMMING, LOST_RATIO))? {
-            return Ok(Some((r, TrackingStatus::Recovered)));
-        }
-        Ok(self
-            .align_depth(frame, world_from_pred, None)
+        Ok(weak
+            .and_then(|w| self.align_depth(frame, &w, Some(WEAK_GUESS_MIN_PAIRED_FRACTION)))
+            .or_else(|| self.align_depth(frame, world_from_pred, None))
             .map(|r| (r, TrackingStatus::DepthAligned)))
     }
 
