@@ -8,7 +8,7 @@
 mod common;
 
 use common::{data, derived, num, reordered};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_frontend::{TrackingStatus, VisualOdometry, VoConfig};
 
@@ -104,9 +104,8 @@ fn a_keyframe_after_dropped_frames_is_tied_to_the_last_by_its_depth() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("teddy_1s_gap");
     // 1 s of frames dropped at 1.5 s: Lucas-Kanade still follows, on few inliers.
-    derived(&teddy, &seq, |i| !(45..75).contains(&i));
+    let seq = frames_dropped(&teddy, tmp.path(), 45..75);
     let (with, without) = with_and_without(
         &seq,
         tmp.path(),
@@ -138,12 +137,11 @@ fn a_frame_after_a_gap_is_aligned_by_its_depth_from_where_its_few_tracks_agree()
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("teddy_1.5s_gap");
     // 1.5 s of frames dropped at 3 s: the camera moves about 0.45 m. The next frame keeps
     // 20 tracks, too few agree to place it, and neither recovery nor relocalization finds
     // enough ORB matches; aligned by its depth from the motion model's guess it pairs 6 %
     // of its samples, from the pose its agreeing tracks give 37 %.
-    derived(&teddy, &seq, |i| !(90..135).contains(&i));
+    let seq = frames_dropped(&teddy, tmp.path(), 90..135);
     let (with, without) =
         with_and_without(&seq, tmp.path(), "[odometry]\ndepth_alignment = false\n");
     assert_eq!(with["frames_lost"], 0, "{with}");
@@ -167,11 +165,10 @@ fn a_frame_after_two_seconds_dropped_is_placed_at_the_recent_velocity() {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
-    let seq = tmp.path().join("teddy_2s_gap");
     // 2 s of frames dropped at 2.5 s: the camera moves 0.57 m and 32 degrees, and at its
     // true pose at most 18 % of the next frame's points lie within 3 cm of any earlier
     // frame's, so nothing can recognise the place.
-    derived(&teddy, &seq, |i| !(75..135).contains(&i));
+    let seq = frames_dropped(&teddy, tmp.path(), 75..135);
     let dir = tmp.path().join("out");
     let report = common::run_report("run", &seq, &dir, &["--camera", "fr3", "--no-map"]);
     assert_eq!(report["frames_lost"], 1, "{report}");
@@ -209,9 +206,16 @@ fn a_piece_after_a_lost_frame_joins_the_map_when_the_camera_comes_back() {
     );
 }
 
+/// teddy_200 without its frames `dropped` (indices into rgb.txt), written under `dir`.
+fn frames_dropped(teddy: &Path, dir: &Path, dropped: std::ops::Range<usize>) -> PathBuf {
+    let seq = dir.join(format!("teddy_without_{}_{}", dropped.start, dropped.end));
+    derived(teddy, &seq, |i| !dropped.contains(&i));
+    seq
+}
+
 /// teddy_200's frames 0-149, then, in one jump back of about 3.7 s, frames 40-194 again:
 /// the frame after the jump shows a place the run passed (written under `dir`).
-fn jumped_back(teddy: &Path, dir: &Path) -> std::path::PathBuf {
+fn jumped_back(teddy: &Path, dir: &Path) -> PathBuf {
     let order: Vec<usize> = (0..150).chain(40..195).collect();
     let seq = dir.join("jumped_back");
     reordered(teddy, &seq, &order);

@@ -126,14 +126,13 @@ impl Smoother {
             .zip(depth.as_slice().par_chunks(w))
             .for_each(|((q, tol), d)| {
                 let q = q.get_mut(r..).unwrap_or(&mut []);
-                let pass: RowPass<'_, std::iter::Empty<_>, M> = RowPass::Invert {
+                crate::simd::dispatch(InvertRow {
                     q,
                     tol,
                     d,
                     k,
                     model,
-                };
-                crate::simd::dispatch(pass);
+                });
             });
         let (inverse, tol) = (&self.inverse, &self.tol);
         // Along the rows.
@@ -153,14 +152,13 @@ impl Smoother {
                 });
                 let centre = row.get(r..r + w).unwrap_or(&[]);
                 let dst = dst.get_mut(r..r + w).unwrap_or(&mut []);
-                let pass: RowPass<'_, _, M> = RowPass::Mean {
+                crate::simd::dispatch(MeanRow {
                     centre,
                     tol: t,
                     pairs,
                     dst,
                     depth: None,
-                };
-                crate::simd::dispatch(pass);
+                });
             });
         let across = &self.across;
         // Along the columns, into depth.
@@ -172,14 +170,13 @@ impl Smoother {
                 let at = |y: usize| across.get(y * pw + r..y * pw + r + w).unwrap_or(&[]);
                 let t = tol.get(v * w..(v + 1) * w).unwrap_or(&[]);
                 let pairs = (1..=r).map(|dy| (at(v + r + dy), at(v + r - dy)));
-                let pass: RowPass<'_, _, M> = RowPass::Mean {
+                crate::simd::dispatch(MeanRow {
                     centre: at(v + r),
                     tol: t,
                     pairs,
                     dst,
                     depth: Some(d),
-                };
-                crate::simd::dispatch(pass);
+                });
             });
         out
     }
@@ -190,70 +187,64 @@ impl Smoother {
     }
 }
 
-/// One row of one of [`Smoother::smooth`]'s passes, run by [`crate::simd::dispatch`] in
-/// the copy for this CPU's instruction set (the same results).
-enum RowPass<'a, P, M: ?Sized> {
-    /// The first pass: `q[i]` the inverse depth of `d[i]` (1/m, 0 without a return),
-    /// `tol[i]` the largest inverse-depth difference a neighbour may have (1/m): that of a
-    /// depth `k sigma_d(d)` away, to first order.
-    Invert {
-        q: &'a mut [f32],
-        tol: &'a mut [f32],
-        d: &'a [f32],
-        k: f32,
-        model: &'a M,
-    },
-    /// A pass along rows or columns: [`mean_of_pairs`]; with `depth` (the row's input
-    /// depths, m) the means are turned back into depths, and a pixel without a return
-    /// keeps its own value (0 or non-finite).
-    Mean {
-        centre: &'a [f32],
-        tol: &'a [f32],
-        pairs: P,
-        dst: &'a mut [f32],
-        depth: Option<&'a [f32]>,
-    },
+/// A row of [`Smoother::smooth`]'s first pass, run by [`crate::simd::dispatch`] in the
+/// copy for this CPU's instruction set (the same results): `q[i]` the inverse depth of
+/// `d[i]` (1/m, 0 without a return), `tol[i]` the largest inverse-depth difference a
+/// neighbour may have (1/m): that of a depth `k sigma_d(d)` away, to first order.
+struct InvertRow<'a, M: ?Sized> {
+    q: &'a mut [f32],
+    tol: &'a mut [f32],
+    d: &'a [f32],
+    k: f32,
+    model: &'a M,
 }
 
-impl<'a, P, M> pulp::WithSimd for RowPass<'a, P, M>
+impl<M: HeightModel + ?Sized> pulp::WithSimd for InvertRow<'_, M> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let Self {
+            q,
+            tol,
+            d,
+            k,
+            model,
+        } = self;
+        for ((q, t), &d) in q.iter_mut().zip(tol.iter_mut()).zip(d) {
+            let ok = (d > 0.0) & (d < f32::INFINITY);
+            let inv = 1.0 / d;
+            *q = if ok { inv } else { 0.0 };
+            let t_ok = k * model.depth_sigma_f32(d) * inv * inv;
+            *t = if ok { t_ok } else { 0.0 };
+        }
+    }
+}
+
+/// A row of a pass along rows or columns, run as [`InvertRow`]: [`mean_of_pairs`]; with
+/// `depth` (the row's input depths, m) the means are turned back into depths, and a pixel
+/// without a return keeps its own value (0 or non-finite).
+struct MeanRow<'a, P> {
+    centre: &'a [f32],
+    tol: &'a [f32],
+    pairs: P,
+    dst: &'a mut [f32],
+    depth: Option<&'a [f32]>,
+}
+
+impl<'a, P> pulp::WithSimd for MeanRow<'a, P>
 where
     P: Iterator<Item = (&'a [f32], &'a [f32])> + Clone,
-    M: HeightModel + ?Sized,
 {
     type Output = ();
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        match self {
-            RowPass::Invert {
-                q,
-                tol,
-                d,
-                k,
-                model,
-            } => {
-                for ((q, t), &d) in q.iter_mut().zip(tol.iter_mut()).zip(d) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
-                    let inv = 1.0 / d;
-                    *q = if ok { inv } else { 0.0 };
-                    let t_ok = k * model.depth_sigma_f32(d) * inv * inv;
-                    *t = if ok { t_ok } else { 0.0 };
-                }
-            }
-            RowPass::Mean {
-                centre,
-                tol,
-                pairs,
-                dst,
-                depth,
-            } => {
-                mean_of_pairs(centre, tol, pairs, dst);
-                for (o, &d) in dst.iter_mut().zip(depth.unwrap_or(&[])) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
-                    let smoothed = 1.0 / *o;
-                    *o = if ok { smoothed } else { d };
-                }
-            }
+        mean_of_pairs(self.centre, self.tol, self.pairs, &mut *self.dst);
+        for (o, &d) in self.dst.iter_mut().zip(self.depth.unwrap_or(&[])) {
+            let ok = (d > 0.0) & (d < f32::INFINITY);
+            let smoothed = 1.0 / *o;
+            *o = if ok { smoothed } else { d };
         }
     }
 }
