@@ -58,8 +58,9 @@ pub struct GyroscopeFrames {
     /// that waited for a later frame ([`crate::VoConfig::keyframe_jolt_ratio`]).
     pub keyframes_deferred: usize,
     /// Motion estimates rejected because their rotation disagreed with the gyroscope's
-    /// ([`crate::VoConfig::max_gyroscope_disagreement_deg`]); the frame then went to
-    /// recovery as a lost one would.
+    /// ([`crate::VoConfig::max_gyroscope_disagreement_deg`]): tracking's (the frame then
+    /// went to recovery as a lost one would) and the poses that recovery, relocalization
+    /// or depth alignment found (the next way was then tried). A frame can count several.
     pub estimates_rejected: usize,
 }
 

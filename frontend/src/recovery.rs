@@ -317,13 +317,13 @@ pub(crate) fn orb_points(
 /// Accepted matches `(query, reference)` between two sets of ORB points
 /// ([`match_descriptors`] with [`MAX_HAMMING`] and [`RATIO`]).
 pub(crate) fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
+    match_points_within(query, reference, (MAX_HAMMING, RATIO))
+}
+
+/// [`match_points`] with the bounds `(max_hamming, ratio)` given.
+fn match_points_within(q: &[OrbPoint], r: &[OrbPoint], bounds: (u32, f64)) -> Vec<(usize, usize)> {
     let descriptors = |p: &[OrbPoint]| p.iter().map(|o| o.descriptor).collect::<Vec<_>>();
-    match_descriptors(
-        &descriptors(query),
-        &descriptors(reference),
-        MAX_HAMMING,
-        RATIO,
-    )
+    match_descriptors(&descriptors(q), &descriptors(r), bounds.0, bounds.1)
 }
 
 /// A pose found by recovery.
@@ -357,7 +357,29 @@ pub(crate) fn estimate_against(
     refine_iterations: usize,
     rng: &mut SplitMix64,
 ) -> Option<(MotionEstimate, Vec<(usize, Correspondence)>)> {
-    let pairs: Vec<(usize, Correspondence)> = match_points(query, points)
+    let matches = match_points(query, points);
+    estimate_from(
+        query,
+        points,
+        matches,
+        world_from_kf,
+        params,
+        refine_iterations,
+        rng,
+    )
+}
+
+/// [`estimate_against`] with the matches `(query, reference)` given.
+fn estimate_from(
+    query: &[OrbPoint],
+    points: &[OrbPoint],
+    matches: Vec<(usize, usize)>,
+    world_from_kf: &Isometry3<f64>,
+    params: &MotionParams,
+    refine_iterations: usize,
+    rng: &mut SplitMix64,
+) -> Option<(MotionEstimate, Vec<(usize, Correspondence)>)> {
+    let pairs: Vec<(usize, Correspondence)> = matches
         .into_iter()
         .filter_map(|(qi, ri)| {
             let (q, r) = (query.get(qi)?, points.get(ri)?);
@@ -408,14 +430,16 @@ pub(crate) fn keep_best(best: &mut Option<Found>, candidate: Option<Found>) {
 
 impl VisualOdometry {
     /// Looks for the current frame's pose by matching its ORB features against the recent
-    /// keyframes'. `None` when recovery is off or no keyframe gives more than `at_least`
-    /// (and at least `recovery_min_inliers`) inliers. The new tracks' keyframe is the next
-    /// one (`kf_count`), which the caller must start.
+    /// keyframes' within `bounds` (`(max_hamming, ratio)`; usually [`MAX_HAMMING`] and
+    /// [`RATIO`]). `None` when recovery is off or no keyframe gives more than `at_least`
+    /// (and `recovery_min_inliers`) inliers. The caller must start the new tracks' keyframe
+    /// (`kf_count`).
     pub(crate) fn recover(
         &mut self,
         frame: &RgbdFrame,
         pyr: &Pyramid,
         at_least: usize,
+        bounds: (u32, f64),
     ) -> Result<Option<Recovered>, FrontendError> {
         if self.config.recovery_keyframes.is_none() || self.recent.keyframes.is_empty() {
             return Ok(None);
@@ -439,9 +463,11 @@ impl VisualOdometry {
                 kf.points = Some(p);
             }
             let points = kf.points.as_deref().unwrap_or(&[]);
-            let found = estimate_against(
+            let matches = match_points_within(&query, points, bounds);
+            let found = estimate_from(
                 &query,
                 points,
+                matches,
                 &kf.world_from_kf,
                 &params,
                 config.refine_iterations,

@@ -35,11 +35,11 @@ use crate::motion::{ransac, Correspondence, MotionParams};
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
     estimate_against, keep_best, match_points, orb_motion_params, orb_points, Anchor,
-    AnchorKeyframe, OrbPoint, Recovered, SPACING_M, SPACING_RAD,
+    AnchorKeyframe, OrbPoint, Recovered, MAX_HAMMING, RATIO, SPACING_M, SPACING_RAD,
 };
 use crate::result::{OdometryLink, PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, UnitQuaternion};
 use opencv::core::Point2f;
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
@@ -64,6 +64,15 @@ pub const MIN_INLIERS: usize = 30;
 /// frame took frame 10 from ORB matches on 2 of 5 seeds (8.4-8.5 mm against 4.1-4.5);
 /// with 3: seeds 1-5 4.3 mm, every 20th frame 8.4 -> 6.7 mm (live 19.2 -> 8.0).
 pub const WEAK_REPLACED_BY_INLIER_RATIO: usize = 3;
+/// The Hamming bound of a lost frame's last chance at recovery, tried after relocalization
+/// and the depth alignment from its tracks' pose (`VisualOdometry::search_by_appearance`):
+/// ORB-SLAM's looser bound. After a second or more of dropped frames the views differ by
+/// 0.4-0.6 m and 25-35 degrees and few matches pass the usual bounds (teddy_200 with 1.25 s
+/// dropped at 1 s: 8 at most, against 144 with these, 32 of them inliers); RANSAC, with
+/// its 2,000 draws and the same inlier count required, sorts out the rest.
+pub const LOST_MAX_HAMMING: u32 = 100;
+/// Lowe's ratio of a lost frame's last chance at recovery (see [`LOST_MAX_HAMMING`]).
+pub const LOST_RATIO: f64 = 0.95;
 /// Fewest tracks of a frame lost after dropped frames that must agree on a pose for it to
 /// start the depth alignment (`VisualOdometry::search_by_appearance`): too few to place
 /// the frame, enough for a start nearer than the motion model's extrapolation.
@@ -203,23 +212,38 @@ impl PlaceMemory {
     }
 }
 
+/// What a lost or weakly tracked frame's search starts from: its predicted pose
+/// (`world_from_pred`), its tracks' correspondences with world points, and the gyroscope's
+/// rotation since the previous frame (`None` when it measured none).
+pub(crate) type Guesses<'a> = (
+    &'a Isometry3<f64>,
+    &'a [Correspondence],
+    Option<&'a UnitQuaternion<f64>>,
+);
+
 impl VisualOdometry {
     /// Looks for the pose of a frame that tracking lost (`lost`) or kept with only
     /// `inliers` inliers: recovery against the recent keyframes (a weak estimate is replaced
     /// only by one with [`WEAK_REPLACED_BY_INLIER_RATIO`] times its inliers), then, for a
-    /// lost frame, relocalization among
-    /// the remembered keyframes and, failing that, depth alignment with the newest keyframe
-    /// from the predicted pose `world_from_pred`. `None` when none finds it.
+    /// lost frame, relocalization among the remembered keyframes, the depth alignment from
+    /// where the frame's few tracks agree (after dropped frames), recovery within looser
+    /// bounds, and the depth alignment with the newest keyframe from the predicted pose
+    /// `world_from_pred`. A pose whose rotation from the previous frame disagrees with
+    /// `gyroscope` (the gyroscope's rotation over the same interval, `None` when it measured
+    /// none) is refused and the next way tried, as tracking's estimates are: a gyroscope
+    /// measures the turn across a gap better than a few ORB matches between distant views
+    /// do. `None` when none finds it.
     pub(crate) fn search_by_appearance(
         &mut self,
         frame: &RgbdFrame,
         pyr: &Pyramid,
         gray_img: &GrayImage,
-        lost: bool,
-        inliers: usize,
-        (world_from_pred, tracked): (&Isometry3<f64>, &[Correspondence]),
+        (lost, inliers): (bool, usize),
+        (world_from_pred, tracked, gyroscope): Guesses,
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
-        if let Some(r) = self.recover(frame, pyr, WEAK_REPLACED_BY_INLIER_RATIO * inliers)? {
+        let at_least = WEAK_REPLACED_BY_INLIER_RATIO * inliers;
+        let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO))?;
+        if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
         if !lost {
@@ -227,7 +251,11 @@ impl VisualOdometry {
         }
         if self.config.relocalization_keyframes.is_some() && self.places.len() > 0 {
             match self.relocalize(frame, pyr, gray_img) {
-                Ok(r) => return Ok(Some((r, TrackingStatus::Relocalized))),
+                Ok(r) => {
+                    if let Some(r) = self.held_to_gyroscope(Some(r), gyroscope) {
+                        return Ok(Some((r, TrackingStatus::Relocalized)));
+                    }
+                }
                 Err(FrontendError::NotLocalized { most_matches, .. }) => {
                     tracing::debug!(
                         "frame {}: not relocalized ({most_matches} matches at most)",
@@ -238,8 +266,7 @@ impl VisualOdometry {
             }
         }
         // After dropped frames, the depth alignment starts where the frame's few tracks
-        // agree, if they do (the motion model's extrapolation over the gap can be far off),
-        // else at the motion model's guess (for an unbroken run of frames, a good start).
+        // agree, if they do (the motion model's extrapolation over the gap can be far off).
         let after_gap = self.config.depth_alignment
             && self
                 .motion_model
@@ -251,10 +278,33 @@ impl VisualOdometry {
             .then(|| ransac(tracked, &params, &mut self.rng))
             .flatten()
             .map(|(pose, ..)| pose);
-        Ok(weak
-            .and_then(|w| self.align_depth(frame, &w, Some(WEAK_GUESS_MIN_PAIRED_FRACTION)))
-            .or_else(|| self.align_depth(frame, world_from_pred, None))
+        let aligned =
+            weak.and_then(|w| self.align_depth(frame, &w, Some(WEAK_GUESS_MIN_PAIRED_FRACTION)));
+        if let Some(r) = self.held_to_gyroscope(aligned, gyroscope) {
+            return Ok(Some((r, TrackingStatus::DepthAligned)));
+        }
+        // The last chances: ORB matches within looser bounds, then the depth alignment from
+        // the motion model's guess (for an unbroken run of frames, a good start).
+        let recovered = self.recover(frame, pyr, at_least, (LOST_MAX_HAMMING, LOST_RATIO))?;
+        if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
+            return Ok(Some((r, TrackingStatus::Recovered)));
+        }
+        let aligned = self.align_depth(frame, world_from_pred, None);
+        Ok(self
+            .held_to_gyroscope(aligned, gyroscope)
             .map(|r| (r, TrackingStatus::DepthAligned)))
+    }
+
+    /// `found`, unless its rotation from the previous frame disagrees with `gyroscope`
+    /// (see [`VisualOdometry::disagrees_with_gyroscope`], which counts the refusal).
+    fn held_to_gyroscope(
+        &mut self,
+        found: Option<Recovered>,
+        gyroscope: Option<&UnitQuaternion<f64>>,
+    ) -> Option<Recovered> {
+        let r = found?;
+        let prev_from_cur = self.world_from_prev.inverse() * r.world_from_cur;
+        (!self.disagrees_with_gyroscope(&prev_from_cur, gyroscope)).then_some(r)
     }
 
     /// Looks for the current frame's pose among the remembered keyframes (see the module

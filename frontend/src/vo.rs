@@ -62,7 +62,7 @@ pub struct VisualOdometry {
     /// `world_from_camera` of the current keyframe.
     pub(crate) world_from_kf: Isometry3<f64>,
     /// `world_from_camera` of the previous frame.
-    world_from_prev: Isometry3<f64>,
+    pub(crate) world_from_prev: Isometry3<f64>,
     /// The constant-velocity model.
     pub(crate) motion_model: crate::motion_model::MotionModel,
     /// Tracks when the current keyframe started.
@@ -339,9 +339,8 @@ impl VisualOdometry {
                 frame,
                 &pyr,
                 &gray_img,
-                lost,
-                inliers,
-                (&world_from_pred, &corrs),
+                (lost, inliers),
+                (&world_from_pred, &corrs, gyro_rotation.as_ref()),
             )? {
                 world_from_cur = r.world_from_cur;
                 (inliers, iterations, information) = (r.inliers, r.iterations, r.information);
