@@ -14,7 +14,7 @@ use crate::error::BackendError;
 use crate::map::PointId;
 use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
 use crate::se3::{is_finite, left_from_right};
-use crate::window::{build, local_window, KeyframeEdge, MapProblem};
+use crate::window::{build, final_free, local_window, KeyframeEdge, MapProblem};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Instant;
@@ -562,17 +562,14 @@ impl Backend {
         g
     }
 
-    /// The final optimization of every keyframe and point (of the newest
-    /// `final_max_keyframes` keyframes on long runs).
+    /// The final optimization, of `final_iterations`: the newest local window, or from the
+    /// oldest keyframe that links tie (see `window::final_free`).
     pub fn finish(&mut self) -> Result<Option<SolveReport>, BackendError> {
-        let all: Vec<KeyframeId> = self.map.keyframes().keys().copied().collect();
-        if all.len() < 2 {
+        let free = final_free(&self.map, &self.pose_edges, &self.config);
+        if free.is_empty() {
             return Ok(None);
         }
-        let free = all
-            .get(all.len().saturating_sub(self.config.final_max_keyframes)..)
-            .unwrap_or(&all);
-        let (report, _) = self.optimize(free, self.config.final_iterations)?;
+        let (report, _) = self.optimize(&free, self.config.final_iterations)?;
         if let Some(newest) = self.newest {
             self.cull_points(newest);
         }

@@ -365,6 +365,61 @@ fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
 }
 
 #[test]
+fn the_final_optimization_frees_the_newest_window_unless_links_tie_keyframes() {
+    let run = synthetic_run(20, 0.004, 2);
+    // No keyframe culled, so that the window is a part of the map.
+    let config = BackendConfig {
+        redundant_observers: 1000,
+        ..BackendConfig::default()
+    };
+    let mut backend = Backend::new(camera(), config).unwrap();
+    for input in run.inputs.clone() {
+        backend.add_keyframe(input).unwrap();
+    }
+    let all: Vec<u64> = backend.map().keyframes().keys().copied().collect();
+    let last = *all.last().unwrap();
+    let active = |b: &Backend| {
+        b.map()
+            .keyframes()
+            .values()
+            .any(|kf| kf.odometry.as_ref().is_some_and(|e| e.active))
+    };
+    assert!(
+        backend.pose_edges.is_empty() && !active(&backend),
+        "no link yet"
+    );
+    let free = crate::window::final_free(&backend.map, &backend.pose_edges, &backend.config);
+    let window = crate::window::local_window(&backend.map, last, &backend.config);
+    assert_eq!(free, window);
+    assert!(
+        free.len() < all.len(),
+        "{} of {} free",
+        free.len(),
+        all.len()
+    );
+    let before: Vec<Isometry3<f64>> = all
+        .iter()
+        .map(|&k| backend.map().pose_of(k).unwrap())
+        .collect();
+    backend.finish().unwrap();
+    for (k, b) in all.iter().zip(&before) {
+        let after = backend.map().pose_of(*k).unwrap();
+        if !free.contains(k) {
+            assert_eq!(after, *b, "keyframe {k} outside the window is held");
+        }
+    }
+    // A link from the fourth keyframe frees every keyframe from it on.
+    backend.pose_edges.push(crate::window::KeyframeEdge {
+        from: all[3],
+        to: last,
+        from_from_to: Isometry3::identity(),
+        information: nalgebra::Matrix6::identity(),
+    });
+    let free = crate::window::final_free(&backend.map, &backend.pose_edges, &backend.config);
+    assert_eq!(free, all[3..].to_vec());
+}
+
+#[test]
 fn the_keyframe_budget_bounds_the_map_and_keeps_culled_poses() {
     // Keyframes over the same scene, the window's redundancy rule off: with a budget of 8
     // (the final span 5), the map never holds more than 8, and a keyframe culled for the

@@ -1,6 +1,6 @@
 //! Turning part of the map into an optimization problem and the result back into the map:
 //! the local window (the newest keyframe and those sharing the most points with it, free;
-//! the other keyframes that see their points, fixed) and the whole map at the end of a run.
+//! the other keyframes that see their points, fixed) and the final optimization's span.
 
 use crate::ba::problem::point_error;
 use crate::ba::{PointEdge, PointVar, PoseEdge, PoseVar, Problem};
@@ -47,6 +47,46 @@ pub(crate) fn local_window(map: &Map, newest: KeyframeId, cfg: &BackendConfig) -
         }
     }
     window
+}
+
+/// The keyframes the final optimization frees. Where links tie keyframes (loops, revisit
+/// and depth links in `pose_edges`, the odometry of a keyframe that re-observed too
+/// little), every keyframe from the oldest one linked (at most the newest
+/// `final_max_keyframes`): local windows, chosen by shared points, do not optimize linked
+/// keyframes together, and this spreads what the links say. Where shared points alone tie
+/// them, the newest keyframe's local window, the only keyframes local optimizations have
+/// not settled: freeing every keyframe there lets the depth's correlated errors bend the
+/// whole trajectory, worse than the live poses on real sequences (docs/slam.md, "The final
+/// optimization"). Empty with fewer than two keyframes.
+pub(crate) fn final_free(
+    map: &Map,
+    pose_edges: &[KeyframeEdge],
+    cfg: &BackendConfig,
+) -> Vec<KeyframeId> {
+    let all: Vec<KeyframeId> = map.keyframes().keys().copied().collect();
+    let Some(&last) = all.last().filter(|_| all.len() >= 2) else {
+        return Vec::new();
+    };
+    let active_odometry = map.keyframes().values().filter_map(|kf| {
+        let e = kf.odometry.as_ref()?;
+        e.active.then_some(e.previous)
+    });
+    let linked_from = pose_edges
+        .iter()
+        .map(|e| e.from)
+        .chain(active_odometry)
+        .min();
+    match linked_from {
+        Some(from) => {
+            let span = all.get(all.len().saturating_sub(cfg.final_max_keyframes)..);
+            span.unwrap_or(&all)
+                .iter()
+                .copied()
+                .filter(|&k| k >= from)
+                .collect()
+        }
+        None => local_window(map, last, cfg),
+    }
 }
 
 /// The covariance (m^2, camera frame) added to a measurement at `p_camera` so that its depth
