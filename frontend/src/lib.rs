@@ -19,6 +19,7 @@ pub mod depth_align;
 mod depth_link;
 pub mod error;
 pub mod features;
+mod guided;
 mod gyro;
 pub mod keyframe;
 pub mod klt;

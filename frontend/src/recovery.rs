@@ -176,9 +176,10 @@ pub(crate) struct RecentKeyframe {
     pub(crate) id: u64,
     pyramid: Rc<Pyramid>,
     depth_m: DepthImage,
-    world_from_kf: Isometry3<f64>,
+    /// Its `world_from_camera`.
+    pub(crate) world_from_kf: Isometry3<f64>,
     /// Its ORB points, computed the first time recovery needs them.
-    points: Option<Vec<OrbPoint>>,
+    pub(crate) points: Option<Vec<OrbPoint>>,
 }
 
 /// The most recent keyframes (oldest first) and the ORB extractor recovery uses.
@@ -370,7 +371,7 @@ pub(crate) fn estimate_against(
 }
 
 /// [`estimate_against`] with the matches `(query, reference)` given.
-fn estimate_from(
+pub(crate) fn estimate_from(
     query: &[OrbPoint],
     points: &[OrbPoint],
     matches: Vec<(usize, usize)>,
@@ -431,7 +432,8 @@ pub(crate) fn keep_best(best: &mut Option<Found>, candidate: Option<Found>) {
 impl VisualOdometry {
     /// Looks for the current frame's pose by matching its ORB features against the recent
     /// keyframes' within `bounds` (`(max_hamming, ratio)`; usually [`MAX_HAMMING`] and
-    /// [`RATIO`]). `None` when recovery is off or no keyframe gives more than `at_least`
+    /// [`RATIO`]); when none gives enough inliers and `guided` is given, near the rough
+    /// poses that at least that many inliers give (`crate::guided`). `None` when recovery is off or no keyframe gives more than `at_least`
     /// (and `recovery_min_inliers`) inliers. The caller must start the new tracks' keyframe
     /// (`kf_count`).
     pub(crate) fn recover(
@@ -440,6 +442,7 @@ impl VisualOdometry {
         pyr: &Pyramid,
         at_least: usize,
         bounds: (u32, f64),
+        guided: Option<usize>,
     ) -> Result<Option<Recovered>, FrontendError> {
         if self.config.recovery_keyframes.is_none() || self.recent.keyframes.is_empty() {
             return Ok(None);
@@ -455,7 +458,9 @@ impl VisualOdometry {
             config,
         )?;
         let params = orb_motion_params(config, config.recovery_min_inliers.max(at_least + 1));
+        let (refine, rng) = (config.refine_iterations, &mut self.rng);
         let mut best = None;
+        let mut all_matches = Vec::new();
         for kf in keyframes.iter_mut().rev() {
             if kf.points.is_none() {
                 let still = ShutterMotion::default();
@@ -464,19 +469,15 @@ impl VisualOdometry {
             }
             let points = kf.points.as_deref().unwrap_or(&[]);
             let matches = match_points_within(&query, points, bounds);
-            let found = estimate_from(
-                &query,
-                points,
-                matches,
-                &kf.world_from_kf,
-                &params,
-                config.refine_iterations,
-                &mut self.rng,
-            );
-            keep_best(
-                &mut best,
-                found.map(|(e, p)| (e, p, (kf.id, kf.world_from_kf))),
-            );
+            let w = &kf.world_from_kf;
+            let found = estimate_from(&query, points, matches.clone(), w, &params, refine, rng);
+            keep_best(&mut best, found.map(|(e, p)| (e, p, (kf.id, *w))));
+            all_matches.push(matches);
+        }
+        // None found, and `guided`: search near the rough poses too few inliers give.
+        if let (None, Some(min_rough)) = (&best, guided) {
+            let near = (&query[..], &*keyframes, all_matches);
+            best = crate::guided::best_near(near, (config, camera), min_rough, rng);
         }
         Ok(best.map(|(e, pairs, matched)| self.recovered(&query, e, &pairs, matched)))
     }

@@ -227,7 +227,8 @@ impl VisualOdometry {
     /// only by one with [`WEAK_REPLACED_BY_INLIER_RATIO`] times its inliers), then, for a
     /// lost frame, relocalization among the remembered keyframes, the depth alignment from
     /// where the frame's few tracks agree (after dropped frames), recovery within looser
-    /// bounds, and the depth alignment with the newest keyframe from the predicted pose
+    /// bounds (after dropped frames, also near the rough poses too few matches give:
+    /// `crate::guided`), and the depth alignment with the newest keyframe from the predicted pose
     /// `world_from_pred`. A pose whose rotation from the previous frame disagrees with
     /// `gyroscope` (the gyroscope's rotation over the same interval, `None` when it measured
     /// none) is refused and the next way tried, as tracking's estimates are: a gyroscope
@@ -242,7 +243,7 @@ impl VisualOdometry {
         (world_from_pred, tracked, gyroscope): Guesses,
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
         let at_least = WEAK_REPLACED_BY_INLIER_RATIO * inliers;
-        let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO))?;
+        let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO), None)?;
         if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
@@ -267,11 +268,11 @@ impl VisualOdometry {
         }
         // After dropped frames, the depth alignment starts where the frame's few tracks
         // agree, if they do (the motion model's extrapolation over the gap can be far off).
-        let after_gap = self.config.depth_alignment
-            && self
-                .motion_model
-                .across_gap(self.prev_t, frame.t_s)
-                .is_some();
+        let across_gap = self
+            .motion_model
+            .across_gap(self.prev_t, frame.t_s)
+            .is_some();
+        let after_gap = self.config.depth_alignment && across_gap;
         let mut params = MotionParams::from_config(&self.config);
         params.min_inliers = WEAK_GUESS_MIN_INLIERS;
         let weak = after_gap
@@ -283,9 +284,12 @@ impl VisualOdometry {
         if let Some(r) = self.held_to_gyroscope(aligned, gyroscope) {
             return Ok(Some((r, TrackingStatus::DepthAligned)));
         }
-        // The last chances: ORB matches within looser bounds, then the depth alignment from
-        // the motion model's guess (for an unbroken run of frames, a good start).
-        let recovered = self.recover(frame, pyr, at_least, (LOST_MAX_HAMMING, LOST_RATIO))?;
+        // The last chances: ORB matches within looser bounds (and after dropped frames, near
+        // the rough pose too few of them give), then the depth alignment from the motion
+        // model's guess (for an unbroken run of frames, a good start).
+        let guided = across_gap.then_some(crate::guided::MIN_ROUGH_INLIERS);
+        let bounds = (LOST_MAX_HAMMING, LOST_RATIO);
+        let recovered = self.recover(frame, pyr, at_least, bounds, guided)?;
         if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
