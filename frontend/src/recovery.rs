@@ -433,9 +433,9 @@ impl VisualOdometry {
     /// Looks for the current frame's pose by matching its ORB features against the recent
     /// keyframes' within `bounds` (`(max_hamming, ratio)`; usually [`MAX_HAMMING`] and
     /// [`RATIO`]); when none gives enough inliers and `guided` is given, near the rough
-    /// poses that at least that many inliers give (`crate::guided`). `None` when recovery is off or no keyframe gives more than `at_least`
-    /// (and `recovery_min_inliers`) inliers. The caller must start the new tracks' keyframe
-    /// (`kf_count`).
+    /// poses that at least that many inliers give (`crate::guided`). `None` when recovery
+    /// is off or no keyframe gives more than `at_least` (and `recovery_min_inliers`)
+    /// inliers. The caller must start the new tracks' keyframe (`kf_count`).
     pub(crate) fn recover(
         &mut self,
         frame: &RgbdFrame,

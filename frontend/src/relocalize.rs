@@ -228,12 +228,12 @@ impl VisualOdometry {
     /// lost frame, relocalization among the remembered keyframes, the depth alignment from
     /// where the frame's few tracks agree (after dropped frames), recovery within looser
     /// bounds (after dropped frames, also near the rough poses too few matches give:
-    /// `crate::guided`), and the depth alignment with the newest keyframe from the predicted pose
-    /// `world_from_pred`. A pose whose rotation from the previous frame disagrees with
-    /// `gyroscope` (the gyroscope's rotation over the same interval, `None` when it measured
-    /// none) is refused and the next way tried, as tracking's estimates are: a gyroscope
-    /// measures the turn across a gap better than a few ORB matches between distant views
-    /// do. `None` when none finds it.
+    /// `crate::guided`), and the depth alignment with the newest keyframe from the
+    /// predicted pose `world_from_pred`. A pose whose rotation from the previous frame
+    /// disagrees with `gyroscope` (the gyroscope's rotation over the same interval, `None`
+    /// when it measured none) is refused and the next way tried, as tracking's estimates
+    /// are: a gyroscope measures the turn across a gap better than a few ORB matches
+    /// between distant views do. `None` when none finds it.
     pub(crate) fn search_by_appearance(
         &mut self,
         frame: &RgbdFrame,
