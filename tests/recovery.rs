@@ -199,9 +199,7 @@ fn a_frame_after_a_gap_is_recovered_by_matches_near_a_rough_pose() {
     // 1.75 s of frames dropped at 1.5 s: within the looser bounds the recent keyframes give
     // 11-18 RANSAC inliers, too few; near where that rough pose projects a keyframe's
     // points, 30 or more.
-    let seq = frames_dropped(&teddy, tmp.path(), 45..98);
-    let dir = tmp.path().join("out");
-    let report = common::run_report("run", &seq, &dir, &["--camera", "fr3", "--no-map"]);
+    let report = run_with_frames_dropped(&teddy, tmp.path(), 45..98);
     assert_eq!(report["frames_lost"], 0, "{report}");
     assert_eq!(report["segments"], 1, "{report}");
     // Measured (seeds 1-3): 11.6 / 16.4 / 11.4 mm; lost before, 99.4 / 47.6 / 99.3 mm.
@@ -218,9 +216,7 @@ fn a_frame_after_two_seconds_dropped_is_placed_at_the_recent_velocity() {
     // 2 s of frames dropped at 2.5 s: the camera moves 0.57 m and 32 degrees, and at its
     // true pose at most 18 % of the next frame's points lie within 3 cm of any earlier
     // frame's, so nothing can recognise the place.
-    let seq = frames_dropped(&teddy, tmp.path(), 75..135);
-    let dir = tmp.path().join("out");
-    let report = common::run_report("run", &seq, &dir, &["--camera", "fr3", "--no-map"]);
+    let report = run_with_frames_dropped(&teddy, tmp.path(), 75..135);
     assert_eq!(report["frames_lost"], 1, "{report}");
     assert_eq!(report["segments"], 2, "{report}");
     // Measured: 21 mm (seqtools' 2 s gap at 2.5 s, seeds 1-3: 19-25 mm); 211-220 mm when
@@ -254,6 +250,17 @@ fn a_piece_after_a_lost_frame_joins_the_map_when_the_camera_comes_back() {
         ate_with < 0.015 && ate_with < 0.3 * ate_without,
         "ATE joined {ate_with} m, apart {ate_without} m"
     );
+}
+
+/// The report of `stride run` (fr3, no map) on teddy with the frames `dropped` removed.
+fn run_with_frames_dropped(
+    teddy: &Path,
+    dir: &Path,
+    dropped: std::ops::Range<usize>,
+) -> serde_json::Value {
+    let seq = frames_dropped(teddy, dir, dropped);
+    let out = dir.join("out");
+    common::run_report("run", &seq, &out, &["--camera", "fr3", "--no-map"])
 }
 
 /// teddy_200 without its frames `dropped` (indices into rgb.txt), written under `dir`.

@@ -335,22 +335,28 @@ fn invalid_configurations_are_refused() {
     );
 }
 
-#[test]
-fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
+/// A back end with `config` fed a 20-keyframe synthetic run (drift 4 mm per keyframe),
+/// before its final optimization; the map's keyframes and their poses.
+fn fed_twenty_keyframes(config: BackendConfig) -> (Backend, Vec<u64>, Vec<Isometry3<f64>>) {
     let run = synthetic_run(20, 0.004, 2);
-    let config = BackendConfig {
-        final_max_keyframes: 5,
-        ..BackendConfig::default()
-    };
     let mut backend = Backend::new(camera(), config).unwrap();
-    for input in run.inputs.clone() {
+    for input in run.inputs {
         backend.add_keyframe(input).unwrap();
     }
-    let live: Vec<u64> = backend.map().keyframes().keys().copied().collect();
-    let before: Vec<Isometry3<f64>> = live
+    let ids: Vec<u64> = backend.map().keyframes().keys().copied().collect();
+    let poses = ids
         .iter()
         .map(|&k| backend.map().pose_of(k).unwrap())
         .collect();
+    (backend, ids, poses)
+}
+
+#[test]
+fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
+    let (mut backend, live, before) = fed_twenty_keyframes(BackendConfig {
+        final_max_keyframes: 5,
+        ..BackendConfig::default()
+    });
     backend.finish().unwrap();
     let moved = |i: usize| {
         let after = backend.map().pose_of(live[i]).unwrap();
@@ -366,17 +372,11 @@ fn the_final_optimization_frees_only_the_newest_keyframes_when_capped() {
 
 #[test]
 fn the_final_optimization_frees_the_newest_window_unless_links_tie_keyframes() {
-    let run = synthetic_run(20, 0.004, 2);
     // No keyframe culled, so that the window is a part of the map.
-    let config = BackendConfig {
+    let (mut backend, all, before) = fed_twenty_keyframes(BackendConfig {
         redundant_observers: 1000,
         ..BackendConfig::default()
-    };
-    let mut backend = Backend::new(camera(), config).unwrap();
-    for input in run.inputs.clone() {
-        backend.add_keyframe(input).unwrap();
-    }
-    let all: Vec<u64> = backend.map().keyframes().keys().copied().collect();
+    });
     let last = *all.last().unwrap();
     let active = |b: &Backend| {
         b.map()
@@ -397,10 +397,6 @@ fn the_final_optimization_frees_the_newest_window_unless_links_tie_keyframes() {
         free.len(),
         all.len()
     );
-    let before: Vec<Isometry3<f64>> = all
-        .iter()
-        .map(|&k| backend.map().pose_of(k).unwrap())
-        .collect();
     backend.finish().unwrap();
     for (k, b) in all.iter().zip(&before) {
         let after = backend.map().pose_of(*k).unwrap();

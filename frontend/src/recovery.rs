@@ -470,9 +470,12 @@ impl VisualOdometry {
             let points = kf.points.as_deref().unwrap_or(&[]);
             let matches = match_points_within(&query, points, bounds);
             let w = &kf.world_from_kf;
-            let found = estimate_from(&query, points, matches.clone(), w, &params, refine, rng);
+            // Kept for the guided search only.
+            if guided.is_some() {
+                all_matches.push(matches.clone());
+            }
+            let found = estimate_from(&query, points, matches, w, &params, refine, rng);
             keep_best(&mut best, found.map(|(e, p)| (e, p, (kf.id, *w))));
-            all_matches.push(matches);
         }
         // None found, and `guided`: search near the rough poses too few inliers give.
         if let (None, Some(min_rough)) = (&best, guided) {
