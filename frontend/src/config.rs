@@ -78,6 +78,11 @@ pub struct VoConfig {
     /// A keypoint is on a depth edge (rejected) when a pixel of its 3x3 neighbourhood differs
     /// from its depth by more than this fraction of it, or lacks depth.
     pub depth_edge_rel: f64,
+    /// Standard deviation (px, turned into m at the point's depth) added isotropically to
+    /// the covariance of a point measured just behind an occluding edge (a pixel within half
+    /// `klt_window` nearer by more than `depth_edge_rel`): its track may follow the edge
+    /// instead of the point (`points::measure`). 0 turns the test off.
+    pub occluded_sigma_px: f64,
     /// Uncertainty model of the 3-D points.
     pub uncertainty: PrimeSenseModel,
     /// Inlier test of RANSAC and of the final inlier set.
@@ -327,6 +332,12 @@ impl VoConfig {
             non_neg(c.depth_edge_rel),
             "0 or more",
         )?;
+        check(
+            "occluded_sigma_px",
+            c.occluded_sigma_px,
+            non_neg(c.occluded_sigma_px) && c.occluded_sigma_px <= 100.0,
+            "0 to 100 (px)",
+        )?;
         let u = &c.uncertainty;
         check(
             "uncertainty.var_u_px2",
@@ -536,6 +547,7 @@ impl Default for VoConfig {
             min_depth_m: 0.3,
             max_depth_m: 6.0,
             depth_edge_rel: 0.04,
+            occluded_sigma_px: 12.0,
             uncertainty: PrimeSenseModel::default(),
             inlier_test: InlierTest::Mahalanobis { chi2: 11.34 },
             model_noise_m: 0.02,

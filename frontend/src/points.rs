@@ -135,8 +135,38 @@ pub fn measure(
     }
     let p = camera.unproject(&pixel, z);
     let ideal = camera.undistort_pixel(&pixel);
-    let cov = config.uncertainty.covariance(camera, ideal.x, ideal.y, z);
+    let mut cov = config.uncertainty.covariance(camera, ideal.x, ideal.y, z);
+    if config.occluded_sigma_px > 0.0 && behind_an_edge(depth, &pixel, config) {
+        let sigma_m = config.occluded_sigma_px * z / camera.fx();
+        cov += Matrix3::identity() * (sigma_m * sigma_m);
+    }
     Some(Measurement { p, cov })
+}
+
+/// True when the keypoint at `pixel` (whose own depth [`depth_at`] accepted) lies just
+/// behind an occluding edge: a pixel within half the Lucas-Kanade window of it (16 samples
+/// on two rings, at that radius and half of it) is nearer than its depth by more than
+/// `depth_edge_rel` of it. The patch that Lucas-Kanade follows then holds the nearer
+/// surface's edge, which moves with that surface, so the track can report the edge's image
+/// motion at the farther surface's depth: too little translation when the camera circles a
+/// near object, more so under blur, which spreads each edge over its neighbours.
+fn behind_an_edge(depth: &DepthImage, pixel: &Point2<f64>, config: &VoConfig) -> bool {
+    let r = i64::from(config.klt_window / 2);
+    let (cx, cy) = (pixel.x.round() as i64, pixel.y.round() as i64);
+    let at = |x: i64, y: i64| -> Option<f64> {
+        let (x, y) = (u32::try_from(x).ok()?, u32::try_from(y).ok()?);
+        depth.get(x, y).map(f64::from).filter(|z| *z > 0.0)
+    };
+    let Some(z0) = at(cx, cy) else {
+        return false;
+    };
+    let nearer = z0 * (1.0 - config.depth_edge_rel);
+    [r, (r + 1) / 2].iter().any(|&k| {
+        [(1, 0), (1, 1), (0, 1), (-1, 1)]
+            .iter()
+            .flat_map(|&(dx, dy)| [(dx, dy), (-dx, -dy)])
+            .any(|(dx, dy)| at(cx + dx * k, cy + dy * k).is_some_and(|z| z < nearer))
+    })
 }
 
 /// The depth (m) at a sub-pixel position: bilinear between the four pixels around it, once
@@ -196,6 +226,36 @@ mod tests {
         assert!(rejected(&depth, (10.0, 10.0)));
         assert!(rejected(&DepthImage::filled(20, 20, 9.0), (10.0, 10.0)));
         assert!(rejected(&DepthImage::filled(20, 20, 2.0), (0.2, 10.0)));
+    }
+
+    #[test]
+    fn a_point_just_behind_an_occluding_edge_is_trusted_less() {
+        let cam = PinholeCamera::new(500.0, 500.0, 15.0, 15.0, 30, 30).unwrap();
+        let cfg = VoConfig::default();
+        let still = ShutterMotion::default();
+        let cov_xx = |depth: &DepthImage, cfg: &VoConfig| {
+            measure(depth, &cam, (15.0, 15.0), &still, cfg).unwrap().cov[(0, 0)]
+        };
+        let clear = cov_xx(&DepthImage::filled(30, 30, 2.0), &cfg);
+        // A nearer surface (1.5 m) from 4 px to the right: inside the tracking window.
+        let mut occluded = DepthImage::filled(30, 30, 2.0);
+        let mut farther = DepthImage::filled(30, 30, 2.0);
+        for y in 0..30 {
+            for x in 19..30 {
+                *occluded.get_mut(x, y).unwrap() = 1.5;
+                *farther.get_mut(x, y).unwrap() = 2.5;
+            }
+        }
+        let sigma_m = cfg.occluded_sigma_px * 2.0 / 500.0;
+        let added = cov_xx(&occluded, &cfg) - clear;
+        assert!((added - sigma_m * sigma_m).abs() < 1e-12, "{added}");
+        // A farther surface beside it occludes nothing; the test can be turned off.
+        assert_eq!(cov_xx(&farther, &cfg), clear);
+        let off = VoConfig {
+            occluded_sigma_px: 0.0,
+            ..VoConfig::default()
+        };
+        assert_eq!(cov_xx(&occluded, &off), clear);
     }
 
     #[test]

@@ -181,14 +181,20 @@ impl Config {
     /// The defaults for a back end in `mode`: bundle adjustment's are [`Config::default`];
     /// the pose graph keeps the odometry's own noise model ([`VoConfig::default`], 2 cm
     /// of isotropic noise), because the back end's made it worse under blur (teddy_200
-    /// blurred by 5 px: 9.0 -> 25.7 mm); `None`, the odometry alone, has its own
+    /// blurred by 5 px: 9.0 -> 25.7 mm), and points behind occluding edges at full weight
+    /// (`occluded_sigma_px` 0); `None`, the odometry alone, has its own
     /// ([`Config::odometry_alone`]).
     pub fn defaults_for(mode: Option<BackendMode>) -> Self {
         match mode {
             None => Self::odometry_alone(),
             Some(BackendMode::BundleAdjustment) => Self::default(),
+            // Trusting points behind occluding edges less made the pose graph worse
+            // (teddy_200 7.5 -> 20.4 mm, docs/blur.md).
             Some(BackendMode::PoseGraph) => Self {
-                odometry: VoConfig::default(),
+                odometry: VoConfig {
+                    occluded_sigma_px: 0.0,
+                    ..VoConfig::default()
+                },
                 backend: Some(BackendConfig {
                     mode: BackendMode::PoseGraph,
                     ..BackendConfig::default()

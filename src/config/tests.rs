@@ -168,9 +168,14 @@ fn the_odometry_and_bundle_adjustment_share_one_noise_model() {
         ..alone
     };
     assert_eq!(same, slam.odometry);
-    // The pose graph: the sensor's model in the odometry, the factor in the back end.
+    // The pose graph: the sensor's model in the odometry (points behind occluding edges
+    // at full weight), the factor in the back end.
     let pg = Config::defaults_for(Some(BackendMode::PoseGraph));
-    assert_eq!(pg.odometry, VoConfig::default());
+    let full_weight = VoConfig {
+        occluded_sigma_px: 0.0,
+        ..VoConfig::default()
+    };
+    assert_eq!(pg.odometry, full_weight);
     assert_eq!(pg.backend.map(|b| b.depth_noise_scale), Some(trust));
 }
 
@@ -256,7 +261,14 @@ fn the_defaults_follow_the_back_end() {
         pg.backend.as_ref().map(|b| b.mode),
         Some(BackendMode::PoseGraph)
     );
-    assert_eq!(pg.odometry, VoConfig::default());
+    assert_eq!(pg.odometry.occluded_sigma_px, 0.0);
+    assert_eq!(
+        VoConfig {
+            occluded_sigma_px: VoConfig::default().occluded_sigma_px,
+            ..pg.odometry
+        },
+        VoConfig::default()
+    );
     assert_eq!(
         Config::defaults_for(Some(BackendMode::BundleAdjustment)),
         Config::default()
