@@ -118,6 +118,9 @@ impl RowRotations {
 /// frame's time while the depth image is taken at the frame's time (as a global-shutter
 /// depth sensor gives it): the keypoint's ray is brought to the frame's time, and the depth
 /// is read where that ray meets the depth image.
+///
+/// The covariance is the sensor model's, plus `occluded_sigma_px` (turned into m at the
+/// depth) in every direction when the keypoint lies just behind an occluding edge.
 pub fn measure(
     depth: &DepthImage,
     camera: &PinholeCamera,
