@@ -156,12 +156,7 @@ fn a_frame_after_a_gap_is_aligned_by_its_depth_from_where_its_few_tracks_agree()
     // Measured (seeds 1-3, `seqtools.py gap ... 3 1.5`): 4.5-4.6 mm, against 66 mm when
     // the frame is lost and its piece placed by the guess (the alignment from the guess
     // alone is refused there too).
-    let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
-    eprintln!("1.5 s gap: ATE {ate_with} m aligned, {ate_without} m lost");
-    assert!(
-        ate_with < 0.008 && ate_with < 0.3 * ate_without,
-        "ATE aligned {ate_with} m, lost {ate_without} m"
-    );
+    assert_far_better(&with, &without, 0.008, ("1.5 s gap", "aligned", "lost"));
 }
 
 #[test]
@@ -182,12 +177,7 @@ fn a_frame_lost_after_a_gap_is_recovered_by_orb_matches_within_looser_bounds() {
     assert_eq!(without["frames_lost"], 1, "{without}");
     // Measured (seeds 1-3, `seqtools.py gap ... 1 1.25`): 6.0 / 5.6 / 8.8 mm, against 53 mm
     // before the looser pass, when the frame was lost (ORB-SLAM3: 5.4 mm).
-    let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
-    eprintln!("1.25 s gap: ATE {ate_with} m recovered, {ate_without} m lost");
-    assert!(
-        ate_with < 0.012 && ate_with < 0.3 * ate_without,
-        "ATE recovered {ate_with} m, lost {ate_without} m"
-    );
+    assert_far_better(&with, &without, 0.012, ("1.25 s gap", "recovered", "lost"));
 }
 
 #[test]
@@ -253,12 +243,7 @@ fn a_piece_after_a_lost_frame_joins_the_map_when_the_camera_comes_back() {
     assert_eq!(with["frames_lost"], 1, "{with}");
     assert_eq!(with["segments"], 1, "{with}");
     assert_eq!(without["segments"], 2, "{without}");
-    let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
-    eprintln!("lost and back: ATE {ate_with} m joined, {ate_without} m apart");
-    assert!(
-        ate_with < 0.015 && ate_with < 0.3 * ate_without,
-        "ATE joined {ate_with} m, apart {ate_without} m"
-    );
+    assert_far_better(&with, &without, 0.015, ("lost and back", "joined", "apart"));
 }
 
 /// The report of `stride run` (fr3, no map) on teddy with the frames `dropped` removed.
@@ -270,6 +255,22 @@ fn run_with_frames_dropped(
     let seq = frames_dropped(teddy, dir, dropped);
     let out = dir.join("out");
     common::run_report("run", &seq, &out, &["--camera", "fr3", "--no-map"])
+}
+
+/// Asserts that the run `with` a mechanism ends below `max_ate_m` and below 0.3 times the
+/// ATE of the run `without` it; `(case, with, without)` name them in the log and the message.
+fn assert_far_better(
+    with: &serde_json::Value,
+    without: &serde_json::Value,
+    max_ate_m: f64,
+    (case, named_with, named_without): (&str, &str, &str),
+) {
+    let (ate_with, ate_without) = (num(&with["ate"], "rmse"), num(&without["ate"], "rmse"));
+    eprintln!("{case}: ATE {ate_with} m {named_with}, {ate_without} m {named_without}");
+    assert!(
+        ate_with < max_ate_m && ate_with < 0.3 * ate_without,
+        "ATE {named_with} {ate_with} m, {named_without} {ate_without} m"
+    );
 }
 
 /// teddy_200 without its frames `dropped` (indices into rgb.txt), written under `dir`.
