@@ -57,6 +57,16 @@ pub const STEP_M: f64 = 0.02;
 /// See [`STEP_M`] (m).
 pub const STEP_RADIUS_M: f64 = 0.02;
 
+/// Scores `map` against the true terrain `gt` (same world frame, z up) over the cells the
+/// map knows, split at [`STEP_M`] / [`STEP_RADIUS_M`]: near a step or an obstacle's foot
+/// (truth spanning more than 2 cm within 2 cm, or no truth there: a wall's or an object's
+/// footprint) and away from them. Near a wall's face the sensor's depth noise throws the
+/// face's points into the floor's cells in front of it, so a few such cells can hold most of
+/// a map's squared error; away from them the error is the terrain's.
+pub fn score_near_and_away_from_steps(map: &Grid<f32>, gt: &Grid<f32>) -> Option<SeenScore> {
+    compare_over_seen(map, map, gt, STEP_M, STEP_RADIUS_M)
+}
+
 /// Cells within this height of the floor plane (m) count as floor in the flatness fit.
 pub const FLOOR_BAND_M: f64 = 0.10;
 

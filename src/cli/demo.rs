@@ -14,7 +14,9 @@ use clap::Args;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use stride::config::Config;
-use stride::known_poses::{map_sequence, phantom_score, views_map, MapperRun};
+use stride::known_poses::{
+    map_sequence, phantom_score, score_near_and_away_from_steps, views_map, MapperRun,
+};
 use stride::run_sequence;
 use stride_core::grid::Grid;
 use stride_core::trajectory::Trajectory;
@@ -26,7 +28,7 @@ use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_eval::plot::{render, Chart, Series, Style, PALETTE};
 use stride_eval::report::Report;
 use stride_mapping::fankhauser::{FankhauserConfig, FankhauserMapper};
-use stride_mapping::metrics::{compare, MapScore};
+use stride_mapping::metrics::{compare, MapScore, SeenScore};
 use stride_mapping::stack::StackMapper;
 use stride_mapping::{ElevationMapper, MapLayers};
 use stride_output::fs::{write_atomic, StagedDir};
@@ -77,28 +79,36 @@ fn f(v: &Value, path: &[&str]) -> f64 {
 struct Scored {
     layers: MapLayers,
     score: Option<MapScore>,
+    /// The same cells split near and away from steps and obstacles' feet.
+    by_steps: Option<SeenScore>,
     phantoms: usize,
 }
 
 impl Scored {
     fn new(layers: MapLayers, truth: &Grid<f32>) -> Self {
         let score = compare(&layers.elevation, truth);
+        let by_steps = score_near_and_away_from_steps(&layers.elevation, truth);
         let phantoms = phantom_score(&layers.elevation, truth).phantoms;
         Self {
             layers,
             score,
+            by_steps,
             phantoms,
         }
     }
 
     fn json(&self) -> Value {
         let s = self.score.as_ref();
+        let b = self.by_steps.as_ref();
         json!({
             "rmse_m": s.map(|s| s.rmse),
             "mean_abs_m": s.map(|s| s.mean_abs),
             "p95_abs_m": s.map(|s| s.p95_abs),
             "coverage": s.map(|s| s.coverage),
             "cells_compared": s.map(|s| s.cells_compared),
+            "rmse_away_from_steps_m": b.map(|b| b.rmse_away_m),
+            "rmse_near_steps_m": b.map(|b| b.rmse_near_steps_m),
+            "cells_near_steps": b.map(|b| b.cells_near_steps),
             "phantoms": self.phantoms,
         })
     }
@@ -468,7 +478,13 @@ fn results_rows(st: &Stages, s: &Value) -> Vec<Vec<String>> {
                 1e3 * at("p95_abs_m"),
                 at("coverage"),
                 at("phantoms")
-            ),
+            ) + &match at("rmse_away_from_steps_m") {
+                away if away.is_finite() => format!(
+                    "; away from steps and obstacles' feet RMSE {:.1} mm",
+                    1e3 * away
+                ),
+                _ => String::new(),
+            },
         ]
     };
     let mut rows = vec![

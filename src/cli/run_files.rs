@@ -8,7 +8,7 @@ use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
 use std::path::Path;
 use stride::config::Config;
-use stride::known_poses::views_map;
+use stride::known_poses::{score_near_and_away_from_steps, views_map};
 use stride::pipeline::world::WorldSource;
 use stride::pipeline::{median_p95, FrameStatus, RunOutput};
 use stride::{MapOutput, PipelineOutput};
@@ -85,6 +85,9 @@ pub fn write_run(
             let (layers, _) = views_map(seq, &frames, gt, map_config)?;
             Some(json!({
                 "against_true_terrain": terrain.as_ref().and_then(|t| compare(&layers.elevation, t)),
+                "against_true_terrain_near_and_away_from_steps": terrain
+                    .as_ref()
+                    .and_then(|t| score_near_and_away_from_steps(&layers.elevation, t)),
                 "floor": floor_fit(&layers.elevation, stride::known_poses::FLOOR_BAND_M),
                 "cells_observed": layers.cells_observed(),
             }))
@@ -150,6 +153,9 @@ pub fn write_run(
     );
     if let (Some(m), Value::Object(o)) = (&map, &mut json) {
         let mut mj = map_json(m, map_score.as_ref());
+        mj["against_true_terrain_near_and_away_from_steps"] = json!(terrain
+            .as_ref()
+            .and_then(|t| score_near_and_away_from_steps(&m.layers.elevation, t)));
         mj["same_views_groundtruth_poses"] = json!(views_gt);
         o.insert("map".into(), mj);
     }

@@ -123,6 +123,29 @@ fn map_section(
             sc["cells_compared"],
             sc["coverage"].as_f64().unwrap_or(f64::NAN)
         ));
+        let mm = |v: &Value, key: &str| 1e3 * v[key].as_f64().unwrap_or(f64::NAN);
+        let by = &jm["against_true_terrain_near_and_away_from_steps"];
+        if by.is_object() {
+            rep.paragraph(format!(
+                "Away from steps and obstacles' feet (true heights spanning more than 2 cm within 2 cm of a cell, or none there: a wall's or an object's footprint): RMSE {:.1} mm; near them, {} cells: {:.1} mm.",
+                mm(by, "rmse_away_m"),
+                by["cells_near_steps"],
+                mm(by, "rmse_near_steps_m"),
+            ));
+        }
+        let gt = &jm["same_views_groundtruth_poses"];
+        if gt.is_object() {
+            let (all, by) = (
+                &gt["against_true_terrain"],
+                &gt["against_true_terrain_near_and_away_from_steps"],
+            );
+            rep.paragraph(format!(
+                "The same views at ground-truth poses (the mapper's own share of the error): RMSE {:.1} mm, away from steps and obstacles' feet {:.1} mm; coverage {:.2}.",
+                mm(all, "rmse"),
+                mm(by, "rmse_away_m"),
+                all["coverage"].as_f64().unwrap_or(f64::NAN),
+            ));
+        }
     }
     let n = charts.len();
     rep.figure(
