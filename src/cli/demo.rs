@@ -14,9 +14,7 @@ use clap::Args;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use stride::config::Config;
-use stride::known_poses::{
-    map_sequence, phantom_score, score_near_and_away_from_steps, views_map, MapperRun,
-};
+use stride::known_poses::{map_sequence, phantom_score, score_near_and_away_from_steps, MapperRun};
 use stride::run_sequence;
 use stride_core::grid::Grid;
 use stride_core::trajectory::Trajectory;
@@ -156,15 +154,13 @@ pub fn run(a: DemoArgs) -> Result<()> {
         &truth,
     );
     tracing::info!("maps with ground-truth poses");
-    let views: Vec<usize> = slam.map.as_ref().map_or_else(Vec::new, |m| {
-        m.stats
-            .view_frames
-            .iter()
-            .filter_map(|&p| Some(slam.output.frames.get(p)?.index))
-            .collect()
-    });
-    let (views_layers, _) = views_map(&seq, &views, &synth.groundtruth, map_config.clone())?;
-    let map_views_gt = Scored::new(views_layers, &truth);
+    // The run (in the ground truth's world) mapped the same views at ground-truth poses.
+    let map_views_gt = Scored::new(
+        slam.views_groundtruth
+            .clone()
+            .context("the run made no map of its views at ground-truth poses")?,
+        &truth,
+    );
     let mappers: Vec<Box<dyn ElevationMapper>> = vec![
         Box::new(StackMapper::new(map_config.stack.clone())?),
         Box::new(FankhauserMapper::new(FankhauserConfig::default())?),

@@ -17,6 +17,7 @@ use stride_datasets::sequence::Sequence;
 use stride_datasets::trajectory_file::write_tum_trajectory;
 use stride_eval::{ate, rpe, AteResult, Preset, RpeOptions, RpeResult};
 use stride_mapping::metrics::{compare, floor_fit, MapScore};
+use stride_mapping::MapLayers;
 use stride_output::fs::{write_atomic, StagedDir};
 
 /// Everything a run measured.
@@ -33,6 +34,9 @@ pub struct RunSummary {
     pub map: Option<MapOutput>,
     /// The map against the true terrain (the folder's terrain.npy), when there is one.
     pub map_score: Option<MapScore>,
+    /// The same views mapped at ground-truth poses (world frame, z up), when the run's
+    /// world is the ground truth's.
+    pub views_groundtruth: Option<MapLayers>,
 }
 
 /// Writes a run's results into `a.out` (staged, then published whole); fails without
@@ -73,7 +77,7 @@ pub fn write_run(
     };
     // In the ground truth's world, the same views at ground-truth poses: the part of the
     // map's error (and unevenness) that is not the SLAM's.
-    let views_gt = match (&map, seq.groundtruth()) {
+    let (views_gt, views_groundtruth) = match (&map, seq.groundtruth()) {
         (Some(m), Some(gt)) if in_gt_world => {
             let frames: Vec<usize> = m
                 .stats
@@ -83,16 +87,17 @@ pub fn write_run(
                 .collect();
             let map_config = config.map.clone().unwrap_or_default();
             let (layers, _) = views_map(seq, &frames, gt, map_config)?;
-            Some(json!({
+            let j = json!({
                 "against_true_terrain": terrain.as_ref().and_then(|t| compare(&layers.elevation, t)),
                 "against_true_terrain_near_and_away_from_steps": terrain
                     .as_ref()
                     .and_then(|t| score_near_and_away_from_steps(&layers.elevation, t)),
                 "floor": floor_fit(&layers.elevation, stride::known_poses::FLOOR_BAND_M),
                 "cells_observed": layers.cells_observed(),
-            }))
+            });
+            (Some(j), Some(layers))
         }
-        _ => None,
+        _ => (None, None),
     };
     // Everything is written into a staging folder published at the end: a run killed at
     // any moment leaves the previous output or the complete new one.
@@ -184,6 +189,7 @@ pub fn write_run(
         output,
         map,
         map_score,
+        views_groundtruth,
     })
 }
 
