@@ -178,8 +178,7 @@ impl Backend {
         // A right perturbation of the keyframe's pose does not depend on the frame the
         // link starts from: the link's tangent information holds after composing.
         self.add_measured_edge(
-            previous,
-            id,
+            (previous, id, false),
             live_from_previous * l.previous_from_this,
             &l.previous_from_this,
             &l.information,
@@ -188,11 +187,11 @@ impl Backend {
 
     /// Adds the pose-pose edge `from -> to` with relative pose `from_from_to`, measured
     /// (by a depth alignment) as `measured` with information `info_left` (left
-    /// perturbation, as the alignment gives it); whether that information was usable.
+    /// perturbation, as the alignment gives it), `far` for a loop or a revisit link;
+    /// whether that information was usable.
     pub(crate) fn add_measured_edge(
         &mut self,
-        from: KeyframeId,
-        to: KeyframeId,
+        (from, to, far): (KeyframeId, KeyframeId, bool),
         from_from_to: Isometry3<f64>,
         measured: &Isometry3<f64>,
         info_left: &Matrix6<f64>,
@@ -205,6 +204,7 @@ impl Backend {
                 to,
                 from_from_to,
                 information,
+                far,
             });
         }
         usable

@@ -97,6 +97,12 @@ pub struct BackendConfig {
     /// The final optimization frees at most this many keyframes (the newest); the others
     /// that see their points are held fixed. Bounds its time and memory on long runs.
     pub final_max_keyframes: usize,
+    /// A far link (a loop closure or a revisit link, which tie keyframes far apart in the
+    /// run) is spread by the final optimization over at most this many of the newest
+    /// keyframes; the older ones stay where the local windows and the loop's own correction
+    /// left them (docs/slam.md, "The final optimization's span"). A weak keyframe's depth
+    /// link to the previous one frees the whole span (up to `final_max_keyframes`).
+    pub final_far_link_keyframes: usize,
     /// The map keeps at most this many keyframes: beyond it, the most redundant of those
     /// older than the final optimization's span (`final_max_keyframes`; most of their
     /// points seen by others, the oldest first on a tie) are culled with their poses kept,
@@ -131,6 +137,7 @@ impl Default for BackendConfig {
             redundant_observers: 3,
             point_grace_keyframes: 3,
             final_max_keyframes: 300,
+            final_far_link_keyframes: 30,
             max_keyframes: 400,
         }
     }
@@ -163,6 +170,13 @@ impl BackendConfig {
             return bad(
                 "final_max_keyframes",
                 self.final_max_keyframes.to_string(),
+                ">= 2",
+            );
+        }
+        if self.final_far_link_keyframes < 2 {
+            return bad(
+                "final_far_link_keyframes",
+                self.final_far_link_keyframes.to_string(),
                 ">= 2",
             );
         }

@@ -266,8 +266,7 @@ impl Backend {
         // The loop stays as an edge, and the keyframe's features are matched again against
         // the map around its corrected pose: the points mapped twice are fused.
         self.add_measured_edge(
-            verified.matched,
-            id,
+            (verified.matched, id, true),
             verified.matched_from_new,
             &verified.matched_from_new,
             &verified.information_left,

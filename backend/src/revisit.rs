@@ -208,8 +208,7 @@ impl Backend {
                 match checked {
                     Ok(a) => {
                         added = self.add_measured_edge(
-                            old,
-                            id,
+                            (old, id, true),
                             a.world_from_cur,
                             &a.world_from_cur,
                             &a.information,

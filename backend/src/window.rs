@@ -25,6 +25,9 @@ pub(crate) struct KeyframeEdge {
     pub(crate) to: KeyframeId,
     pub(crate) from_from_to: nalgebra::Isometry3<f64>,
     pub(crate) information: Matrix6<f64>,
+    /// A link between keyframes far apart in the run (a loop closure, a revisit link), not
+    /// an odometry or a weak keyframe's depth link to the one before it.
+    pub(crate) far: bool,
 }
 
 /// The free keyframes of a local optimization around `newest`: itself and the keyframes
@@ -52,12 +55,13 @@ pub(crate) fn local_window(map: &Map, newest: KeyframeId, cfg: &BackendConfig) -
 /// The keyframes the final optimization frees. Where links tie keyframes (loops, revisit
 /// and depth links in `pose_edges`, the odometry of a keyframe that re-observed too
 /// little), every keyframe from the oldest one linked (at most the newest
-/// `final_max_keyframes`): local windows, chosen by shared points, do not optimize linked
-/// keyframes together, and this spreads what the links say. Where shared points alone tie
-/// them, the newest keyframe's local window, the only keyframes local optimizations have
-/// not settled: freeing every keyframe there lets the depth's correlated errors bend the
-/// whole trajectory, worse than the live poses on real sequences (docs/slam.md, "The final
-/// optimization"). Empty with fewer than two keyframes.
+/// `final_max_keyframes`; a far link, a loop or a revisit, reaches back at most the newest
+/// `final_far_link_keyframes`): local windows, chosen by shared points, do not optimize
+/// linked keyframes together, and this spreads what the links say. Where shared points
+/// alone tie them, the newest keyframe's local window, the only keyframes local
+/// optimizations have not settled: freeing every keyframe there lets the depth's correlated
+/// errors bend the whole trajectory, worse than the live poses on real sequences
+/// (docs/slam.md, "The final optimization"). Empty with fewer than two keyframes.
 pub(crate) fn final_free(
     map: &Map,
     pose_edges: &[KeyframeEdge],
@@ -71,9 +75,21 @@ pub(crate) fn final_free(
         let e = kf.odometry.as_ref()?;
         e.active.then_some(e.previous)
     });
+    // A far link reaches back at most `final_far_link_keyframes`.
+    let far_from = all
+        .get(all.len().saturating_sub(cfg.final_far_link_keyframes))
+        .copied()
+        .unwrap_or(last);
     let linked_from = pose_edges
         .iter()
-        .map(|e| e.from)
+        .map(|e| {
+            let oldest = e.from.min(e.to);
+            if e.far {
+                oldest.max(far_from)
+            } else {
+                oldest
+            }
+        })
         .chain(active_odometry)
         .min();
     match linked_from {
@@ -157,6 +173,7 @@ pub(crate) fn build(
                 to: k,
                 from_from_to: e.previous_from_this,
                 information: e.information,
+                far: false,
             });
         }
     }
