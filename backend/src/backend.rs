@@ -187,7 +187,7 @@ impl Backend {
 
     /// Adds the pose-pose edge `from -> to` with relative pose `from_from_to`, measured
     /// (by a depth alignment) as `measured` with information `info_left` (left
-    /// perturbation, as the alignment gives it), `far` for a loop or a revisit link;
+    /// perturbation, as the alignment gives it), `far` for a revisit link;
     /// whether that information was usable.
     pub(crate) fn add_measured_edge(
         &mut self,

@@ -414,7 +414,7 @@ fn the_final_optimization_frees_the_newest_window_unless_links_tie_keyframes() {
     });
     let free = crate::window::final_free(&backend.map, &backend.pose_edges, &backend.config);
     assert_eq!(free, all[3..].to_vec());
-    // The same link as a loop or a revisit link reaches back only over the newest
+    // The same link as a revisit link reaches back only over the newest
     // `final_far_link_keyframes`.
     backend.pose_edges.iter_mut().for_each(|e| e.far = true);
     backend.config.final_far_link_keyframes = 5;

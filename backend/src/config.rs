@@ -97,11 +97,11 @@ pub struct BackendConfig {
     /// The final optimization frees at most this many keyframes (the newest); the others
     /// that see their points are held fixed. Bounds its time and memory on long runs.
     pub final_max_keyframes: usize,
-    /// A far link (a loop closure or a revisit link, which tie keyframes far apart in the
-    /// run) is spread by the final optimization over at most this many of the newest
-    /// keyframes; the older ones stay where the local windows and the loop's own correction
-    /// left them (docs/slam.md, "The final optimization's span"). A weak keyframe's depth
-    /// link to the previous one frees the whole span (up to `final_max_keyframes`).
+    /// A revisit link (which ties a keyframe to one of an earlier pass) is spread by the
+    /// final optimization over at most this many of the newest keyframes; the older ones
+    /// stay where the local windows left them (docs/slam.md, "The final optimization's
+    /// span"). A loop closure and a weak keyframe's depth link free the whole span (up to
+    /// `final_max_keyframes`).
     pub final_far_link_keyframes: usize,
     /// The map keeps at most this many keyframes: beyond it, the most redundant of those
     /// older than the final optimization's span (`final_max_keyframes`; most of their

@@ -25,8 +25,8 @@ pub(crate) struct KeyframeEdge {
     pub(crate) to: KeyframeId,
     pub(crate) from_from_to: nalgebra::Isometry3<f64>,
     pub(crate) information: Matrix6<f64>,
-    /// A link between keyframes far apart in the run (a loop closure, a revisit link), not
-    /// an odometry or a weak keyframe's depth link to the one before it.
+    /// A revisit link (to a keyframe of an earlier pass), whose reach the final
+    /// optimization caps; not a loop closure, an odometry or a weak keyframe's depth link.
     pub(crate) far: bool,
 }
 
@@ -55,7 +55,7 @@ pub(crate) fn local_window(map: &Map, newest: KeyframeId, cfg: &BackendConfig) -
 /// The keyframes the final optimization frees. Where links tie keyframes (loops, revisit
 /// and depth links in `pose_edges`, the odometry of a keyframe that re-observed too
 /// little), every keyframe from the oldest one linked (at most the newest
-/// `final_max_keyframes`; a far link, a loop or a revisit, reaches back at most the newest
+/// `final_max_keyframes`; a revisit link reaches back at most the newest
 /// `final_far_link_keyframes`): local windows, chosen by shared points, do not optimize
 /// linked keyframes together, and this spreads what the links say. Where shared points
 /// alone tie them, the newest keyframe's local window, the only keyframes local
@@ -75,7 +75,7 @@ pub(crate) fn final_free(
         let e = kf.odometry.as_ref()?;
         e.active.then_some(e.previous)
     });
-    // A far link reaches back at most `final_far_link_keyframes`.
+    // A revisit link reaches back at most `final_far_link_keyframes`.
     let far_from = all
         .get(all.len().saturating_sub(cfg.final_far_link_keyframes))
         .copied()
