@@ -187,11 +187,11 @@ impl Backend {
 
     /// Adds the pose-pose edge `from -> to` with relative pose `from_from_to`, measured
     /// (by a depth alignment) as `measured` with information `info_left` (left
-    /// perturbation, as the alignment gives it), `far` for a revisit link;
+    /// perturbation, as the alignment gives it), `revisit` for a revisit link;
     /// whether that information was usable.
     pub(crate) fn add_measured_edge(
         &mut self,
-        (from, to, far): (KeyframeId, KeyframeId, bool),
+        (from, to, revisit): (KeyframeId, KeyframeId, bool),
         from_from_to: Isometry3<f64>,
         measured: &Isometry3<f64>,
         info_left: &Matrix6<f64>,
@@ -204,7 +204,7 @@ impl Backend {
                 to,
                 from_from_to,
                 information,
-                far,
+                revisit,
             });
         }
         usable

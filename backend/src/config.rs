@@ -102,7 +102,7 @@ pub struct BackendConfig {
     /// stay where the local windows left them (docs/slam.md, "The final optimization's
     /// span"). A loop closure and a weak keyframe's depth link free the whole span (up to
     /// `final_max_keyframes`).
-    pub final_far_link_keyframes: usize,
+    pub final_revisit_link_keyframes: usize,
     /// The map keeps at most this many keyframes: beyond it, the most redundant of those
     /// older than the final optimization's span (`final_max_keyframes`; most of their
     /// points seen by others, the oldest first on a tie) are culled with their poses kept,
@@ -137,7 +137,7 @@ impl Default for BackendConfig {
             redundant_observers: 3,
             point_grace_keyframes: 3,
             final_max_keyframes: 300,
-            final_far_link_keyframes: 30,
+            final_revisit_link_keyframes: 30,
             max_keyframes: 400,
         }
     }
@@ -173,10 +173,10 @@ impl BackendConfig {
                 ">= 2",
             );
         }
-        if self.final_far_link_keyframes < 2 {
+        if self.final_revisit_link_keyframes < 2 {
             return bad(
-                "final_far_link_keyframes",
-                self.final_far_link_keyframes.to_string(),
+                "final_revisit_link_keyframes",
+                self.final_revisit_link_keyframes.to_string(),
                 ">= 2",
             );
         }

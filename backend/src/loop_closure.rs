@@ -265,7 +265,7 @@ impl Backend {
         let step = before.inverse() * verified.world_from_new;
         // The loop stays as an edge, and the keyframe's features are matched again against
         // the map around its corrected pose: the points mapped twice are fused. The final
-        // optimization spreads it over the whole span (not `far`: capped, the demo's lap
+        // optimization spreads it over the whole span (not `revisit`: capped, the demo's lap
         // lost 0.71 -> 0.84 mm).
         self.add_measured_edge(
             (verified.matched, id, false),

@@ -27,7 +27,7 @@ pub(crate) struct KeyframeEdge {
     pub(crate) information: Matrix6<f64>,
     /// A revisit link (to a keyframe of an earlier pass), whose reach the final
     /// optimization caps; not a loop closure, an odometry or a weak keyframe's depth link.
-    pub(crate) far: bool,
+    pub(crate) revisit: bool,
 }
 
 /// The free keyframes of a local optimization around `newest`: itself and the keyframes
@@ -56,7 +56,7 @@ pub(crate) fn local_window(map: &Map, newest: KeyframeId, cfg: &BackendConfig) -
 /// and depth links in `pose_edges`, the odometry of a keyframe that re-observed too
 /// little), every keyframe from the oldest one linked (at most the newest
 /// `final_max_keyframes`; a revisit link reaches back at most the newest
-/// `final_far_link_keyframes`): local windows, chosen by shared points, do not optimize
+/// `final_revisit_link_keyframes`): local windows, chosen by shared points, do not optimize
 /// linked keyframes together, and this spreads what the links say. Where shared points
 /// alone tie them, the newest keyframe's local window, the only keyframes local
 /// optimizations have not settled: freeing every keyframe there lets the depth's correlated
@@ -75,17 +75,17 @@ pub(crate) fn final_free(
         let e = kf.odometry.as_ref()?;
         e.active.then_some(e.previous)
     });
-    // A revisit link reaches back at most `final_far_link_keyframes`.
-    let far_from = all
-        .get(all.len().saturating_sub(cfg.final_far_link_keyframes))
+    // A revisit link reaches back at most `final_revisit_link_keyframes`.
+    let revisit_from = all
+        .get(all.len().saturating_sub(cfg.final_revisit_link_keyframes))
         .copied()
         .unwrap_or(last);
     let linked_from = pose_edges
         .iter()
         .map(|e| {
             let oldest = e.from.min(e.to);
-            if e.far {
-                oldest.max(far_from)
+            if e.revisit {
+                oldest.max(revisit_from)
             } else {
                 oldest
             }
@@ -173,7 +173,7 @@ pub(crate) fn build(
                 to: k,
                 from_from_to: e.previous_from_this,
                 information: e.information,
-                far: false,
+                revisit: false,
             });
         }
     }
