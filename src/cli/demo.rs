@@ -141,15 +141,17 @@ pub fn run(a: DemoArgs) -> Result<()> {
     let truth = read_grid(&dir.join("sequence/terrain.npy"), None)?;
     let args = run_args(&a, dir);
     let config = args.config()?;
-    let slam = run_pipeline(&args, &config, &seq)?;
+    let mut slam = run_pipeline(&args, &config, &seq)?;
     let map_config = config
         .map
         .clone()
         .context("the demo needs the map: not `map = false`")?;
+    // The run scored both maps for its report; the demo's report adds the phantoms and
+    // the split near and away from steps, so it takes the layers and scores them again.
     let map_slam = Scored::new(
         slam.map
-            .as_ref()
-            .map(|m| m.layers.clone())
+            .take()
+            .map(|m| m.layers)
             .context("the pipeline made no map")?,
         &truth,
     );
@@ -157,7 +159,7 @@ pub fn run(a: DemoArgs) -> Result<()> {
     // The run (in the ground truth's world) mapped the same views at ground-truth poses.
     let map_views_gt = Scored::new(
         slam.views_groundtruth
-            .clone()
+            .take()
             .context("the run made no map of its views at ground-truth poses")?,
         &truth,
     );

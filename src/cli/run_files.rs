@@ -12,6 +12,7 @@ use stride::known_poses::{score_near_and_away_from_steps, views_map};
 use stride::pipeline::world::WorldSource;
 use stride::pipeline::{median_p95, FrameStatus, RunOutput};
 use stride::{MapOutput, PipelineOutput};
+use stride_core::grid::Grid;
 use stride_datasets::grid_file::read_grid;
 use stride_datasets::sequence::Sequence;
 use stride_datasets::trajectory_file::write_tum_trajectory;
@@ -71,9 +72,9 @@ pub fn write_run(
         Some(p) => Some(read_grid(&p, None).context("reading the true terrain")?),
         None => None,
     };
-    let map_score = match (&map, &terrain) {
-        (Some(m), Some(t)) => compare(&m.layers.elevation, t),
-        _ => None,
+    let (map_score, map_terrain_json) = match &map {
+        Some(m) => terrain_scores(&m.layers.elevation, terrain.as_ref()),
+        None => (None, Value::Null),
     };
     // In the ground truth's world, the same views at ground-truth poses: the part of the
     // map's error (and unevenness) that is not the SLAM's.
@@ -87,14 +88,12 @@ pub fn write_run(
                 .collect();
             let map_config = config.map.clone().unwrap_or_default();
             let (layers, _) = views_map(seq, &frames, gt, map_config)?;
-            let j = json!({
-                "against_true_terrain": terrain.as_ref().and_then(|t| compare(&layers.elevation, t)),
-                "against_true_terrain_near_and_away_from_steps": terrain
-                    .as_ref()
-                    .and_then(|t| score_near_and_away_from_steps(&layers.elevation, t)),
-                "floor": floor_fit(&layers.elevation, stride::known_poses::FLOOR_BAND_M),
-                "cells_observed": layers.cells_observed(),
-            });
+            let mut j = terrain_scores(&layers.elevation, terrain.as_ref()).1;
+            j["floor"] = json!(floor_fit(
+                &layers.elevation,
+                stride::known_poses::FLOOR_BAND_M
+            ));
+            j["cells_observed"] = json!(layers.cells_observed());
             (Some(j), Some(layers))
         }
         _ => (None, None),
@@ -157,10 +156,10 @@ pub fn write_run(
         ate_live.as_ref(),
     );
     if let (Some(m), Value::Object(o)) = (&map, &mut json) {
-        let mut mj = map_json(m, map_score.as_ref());
-        mj["against_true_terrain_near_and_away_from_steps"] = json!(terrain
-            .as_ref()
-            .and_then(|t| score_near_and_away_from_steps(&m.layers.elevation, t)));
+        let mut mj = map_json(m);
+        if let (Value::Object(o), Value::Object(scores)) = (&mut mj, map_terrain_json) {
+            o.extend(scores);
+        }
         mj["same_views_groundtruth_poses"] = json!(views_gt);
         o.insert("map".into(), mj);
     }
@@ -193,8 +192,21 @@ pub fn write_run(
     })
 }
 
-/// The report.json object of the elevation map.
-fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
+/// A map's heights `elevation` (m) scored against the true terrain, when there is one: the
+/// score over every cell both know, and report.json's object of it and of the split near
+/// and away from steps (`against_true_terrain`, `..._near_and_away_from_steps`).
+fn terrain_scores(elevation: &Grid<f32>, terrain: Option<&Grid<f32>>) -> (Option<MapScore>, Value) {
+    let score = terrain.and_then(|t| compare(elevation, t));
+    let by_steps = terrain.and_then(|t| score_near_and_away_from_steps(elevation, t));
+    let j = json!({
+        "against_true_terrain": score,
+        "against_true_terrain_near_and_away_from_steps": by_steps,
+    });
+    (score, j)
+}
+
+/// The report.json object of the elevation map (its scores against the true terrain apart).
+fn map_json(m: &MapOutput) -> Value {
     let s = &m.stats;
     let floor = floor_fit(&m.layers.elevation, stride::known_poses::FLOOR_BAND_M);
     json!({
@@ -225,7 +237,6 @@ fn map_json(m: &MapOutput, score: Option<&MapScore>) -> Value {
         "final_alignment": serde_json::to_value(&s.final_alignment).unwrap_or(Value::Null),
         "archive_dropped_cells": s.archive_dropped_cells,
         "floor": floor.and_then(|f| serde_json::to_value(f).ok()),
-        "against_true_terrain": score.and_then(|sc| serde_json::to_value(sc).ok()),
     })
 }
 
