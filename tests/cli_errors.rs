@@ -80,6 +80,11 @@ fn outputs_and_ranges_are_checked_before_the_work() {
         err.contains("--resolution -1") && err.contains("must be positive"),
         "{err}"
     );
+    let err = fails(&["synth", "--out", o, "--depth-bias-scale", "-1"]);
+    assert!(
+        err.contains("--depth-bias-scale -1") && err.contains("0 or more"),
+        "{err}"
+    );
     let err = fails(&[
         "map",
         "--dataset",

@@ -40,13 +40,16 @@ fn demo_renders_tracks_maps_and_reports() {
     assert!(num(slam, "rmse_m") < 1.4 * num(gt, "rmse_m"), "{r}");
     assert!(num(slam, "coverage") > 0.95 * num(gt, "coverage"), "{r}");
     assert_eq!(slam["phantoms"], 0, "{r}");
-    // Both maps are also scored away from steps and obstacles' feet, where most of the
-    // squared error sits (measured on this prefix: 1.1 against 8.4 mm for the SLAM's map,
-    // 0.8 against 6.3 mm for ground truth's).
+    // Both maps are also scored near and away from steps and obstacles' feet, where the
+    // error differs in kind. Measured on this prefix since steep faces' points are moved
+    // behind the faces (2026-11-28): near 16.6 / 16.2 mm, away 3.8 / 3.9 mm, all cells 7.3 /
+    // 7.2 mm for the SLAM's map / ground truth's (before: away 1.1 / 0.8 mm against 8.4 /
+    // 6.3 mm over all cells, and the bound on away was half of all cells).
     for m in [slam, gt] {
+        let away = num(m, "rmse_away_from_steps_m");
         assert!(
-            num(m, "rmse_away_from_steps_m") < 0.5 * num(m, "rmse_m")
-                && num(m, "rmse_near_steps_m") > num(m, "rmse_m")
+            away < 0.7 * num(m, "rmse_m")
+                && num(m, "rmse_near_steps_m") > 2.0 * away
                 && m["cells_near_steps"].as_u64().unwrap() > 0,
             "{r}"
         );

@@ -15,13 +15,14 @@ use stride_core::camera::PinholeCamera;
 use stride_core::image::DepthImage;
 
 /// A measurement assigned to a cell of a map window: the cell's storage index, where in the
-/// cell it lies, whether it comes from a smooth patch of a depth image, the height (m, map
-/// frame) and its variance (m²). 12 bytes: the index (below 2^24, the most cells a window
-/// has) shares a word with the position in the cell and the smoothness flag.
+/// cell it lies (or that it is a steep face's point), whether it comes from a smooth patch
+/// of a depth image, the height (m, map frame) and its variance (m²). 12 bytes: the index
+/// (below 2^24, the most cells a window has) shares a word with the position in the cell
+/// and the smoothness flag.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct CellPoint {
-    /// Storage index in the low 24 bits, [`CellPoint::centrality`] times 127 in the next 7,
-    /// [`CellPoint::smooth`] in the top bit.
+    /// Storage index in the low 24 bits, [`CellPoint::centrality`] times 126 in the next 7
+    /// (127: [`CellPoint::face`]), [`CellPoint::smooth`] in the top bit.
     packed: u32,
     /// Height (m, map frame, up).
     pub z_m: f32,
@@ -31,11 +32,15 @@ pub struct CellPoint {
 
 impl CellPoint {
     /// A measurement of the cell with storage index `cell` (below 2^24), `centrality` in
-    /// [0, 1] (stored to 1/127), from a smooth depth patch or not (`smooth`), height `z_m`
-    /// (m) and variance `var_m2` (m²).
+    /// [0, 1] (stored to 1/126) or [`FACE`], from a smooth depth patch or not (`smooth`),
+    /// height `z_m` (m) and variance `var_m2` (m²).
     #[inline]
     pub fn new(cell: u32, centrality: f32, smooth: bool, z_m: f32, var_m2: f32) -> Self {
-        let q = (centrality.clamp(0.0, 1.0) * 127.0 + 0.5) as u32;
+        let q = if centrality < 0.0 {
+            FACE_CODE
+        } else {
+            (centrality.min(1.0) * 126.0 + 0.5) as u32
+        };
         Self {
             packed: (cell & 0x00ff_ffff) | (q << 24) | (u32::from(smooth) << 31),
             z_m,
@@ -59,12 +64,31 @@ impl CellPoint {
     }
 
     /// Where in its cell the point lies: `1 - 2 (dx² + dy²)` with `dx, dy` its offsets from
-    /// the cell's centre in cells, so 1 at the centre and 0 at a corner (to 1/127).
+    /// the cell's centre in cells, so 1 at the centre and 0 at a corner (to 1/126); 0 for a
+    /// [`CellPoint::face`] point.
     #[inline]
     pub fn centrality(&self) -> f32 {
-        ((self.packed >> 24) & 0x7f) as f32 / 127.0
+        let q = (self.packed >> 24) & 0x7f;
+        if q == FACE_CODE {
+            0.0
+        } else {
+            q as f32 / 126.0
+        }
+    }
+
+    /// True for a point of a steep face moved behind it ([`crate::steep`]): a bound below
+    /// the height of the cell it lands in, not a measurement of the cell's top.
+    #[inline]
+    pub fn face(&self) -> bool {
+        (self.packed >> 24) & 0x7f == FACE_CODE
     }
 }
+
+/// The centrality given to [`CellPoint::new`] for a steep face's point ([`CellPoint::face`]).
+pub const FACE: f32 = -1.0;
+
+/// The packed code of [`FACE`].
+const FACE_CODE: u32 = 127;
 
 /// Smallest height variance handed to a mapper (m²); smaller ones are raised to it.
 pub const VAR_MIN_M2: f32 = 1e-10;
@@ -101,20 +125,33 @@ impl Binned {
     }
 }
 
+/// How [`prepare_binned`] assigns a frame's measurements to cells and what each records.
+#[derive(Debug, Clone, Copy)]
+pub struct Binning<'a> {
+    /// Gives the storage index of the cell containing map-frame `(x, y)` (m) and its band,
+    /// or none outside the window (see [`crate::window::Window::binner`]).
+    pub binner: &'a CellBinner,
+    /// Each point records where in its cell it lies ([`CellPoint::centrality`], else 0:
+    /// it costs about 0.3 ms per VGA frame).
+    pub centrality: bool,
+    /// Each point of a depth image records whether its pixel is smooth (with an edge
+    /// filter; [`CellPoint::smooth`], else false).
+    pub smooth: bool,
+    /// Per pixel of a depth image (row-major), non-zero where the point is a steep face's,
+    /// moved behind it ([`crate::steep`]; [`CellPoint::face`]). Ignored for point clouds.
+    pub faces: Option<&'a [u8]>,
+}
+
 /// Transforms a frame's measurements into map-frame heights with height variances and
-/// assigns each to its cell: `binner` gives the storage index of the cell containing
-/// map-frame `(x, y)` (m) and its band (below `bands`), or none outside the window (see
-/// [`crate::window::Window::binner`]); with `centrality`, each point also records where in
-/// its cell it lies ([`CellPoint::centrality`], else 0: it costs about 0.3 ms per VGA
-/// frame); with `smooth` (and an edge filter), whether its pixel is smooth
-/// ([`CellPoint::smooth`], else false). Runs in parallel over [`SLICES`] slices of the input;
-/// within a band the measurements keep their input order. Invalid measurements are
-/// dropped and counted by reason (including `outside_window`).
+/// assigns each to its cell as `binning` says, its band below `bands`. Runs in parallel
+/// over [`SLICES`] slices of the input; within a band the measurements keep their input
+/// order. Invalid measurements are dropped and counted by reason (including
+/// `outside_window`).
 pub fn prepare_binned<M: HeightModel>(
     frame: &SensorFrame<'_>,
     model: &M,
     rays: &mut RayCache,
-    (binner, centrality, smooth): (&CellBinner, bool, bool),
+    binning: Binning<'_>,
     bands: usize,
     edge: Option<&EdgeFilter>,
     out: &mut Binned,
@@ -134,6 +171,9 @@ pub fn prepare_binned<M: HeightModel>(
         };
     }
     let place = Placement::new(&t, model.range_m());
+    let Binning {
+        binner, centrality, ..
+    } = binning;
     let push = |res: Result<HeightSample, Reason>,
                 lists: &mut Vec<Vec<CellPoint>>,
                 rej: &mut Rejections| match res {
@@ -175,19 +215,9 @@ pub fn prepare_binned<M: HeightModel>(
                         model,
                     };
                     if centrality {
-                        crate::depth_pass::bin_depth_slice::<M, true>(
-                            slice,
-                            (binner, smooth),
-                            lists,
-                            rej,
-                        );
+                        crate::depth_pass::bin_depth_slice::<M, true>(slice, binning, lists, rej);
                     } else {
-                        crate::depth_pass::bin_depth_slice::<M, false>(
-                            slice,
-                            (binner, smooth),
-                            lists,
-                            rej,
-                        );
+                        crate::depth_pass::bin_depth_slice::<M, false>(slice, binning, lists, rej);
                     }
                 });
         }

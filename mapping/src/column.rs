@@ -38,8 +38,11 @@ pub(crate) struct Acc {
     /// [`crate::input::CellPoint::centrality`]).
     pub(crate) sc: f32,
     /// How many of the measurements come from smooth pixels (see
-    /// [`crate::input::CellPoint::smooth`]).
-    pub(crate) smooth: u32,
+    /// [`crate::input::CellPoint::smooth`]; saturating).
+    pub(crate) smooth: u16,
+    /// How many are measurements of a surface's height, not a steep face's points (see
+    /// [`crate::input::CellPoint::face`]; saturating).
+    pub(crate) surface: u16,
 }
 
 /// The voxel stack of a column (kept apart from [`Cell`] so that the passes over the
@@ -104,6 +107,9 @@ pub(crate) struct Cell {
     pub(crate) established: bool,
     /// On its band's list of columns whose vitality still decays.
     pub(crate) pending: bool,
+    /// The estimate rests on steep faces' points alone (a bound from below): the first
+    /// measurement of a surface replaces it.
+    pub(crate) bound_only: bool,
 }
 
 impl Cell {
@@ -124,13 +130,14 @@ impl Cell {
         idx: i32,
         z_rel: f32,
         w: f32,
-        (centrality, smooth): (f32, bool),
+        (centrality, smooth, face): (f32, bool, bool),
     ) -> bool {
         let add = |a: &mut Acc| {
             a.sw += w;
             a.swh += w * z_rel;
             a.sc += centrality;
-            a.smooth += u32::from(smooth);
+            a.smooth = a.smooth.saturating_add(u16::from(smooth));
+            a.surface = a.surface.saturating_add(u16::from(!face));
         };
         let n = usize::from(self.n_acc);
         if let Some(a) = acc.in_use_mut(n, pool).iter_mut().find(|a| a.idx == idx) {
@@ -158,7 +165,8 @@ impl Cell {
                     sw: w,
                     swh: w * z_rel,
                     sc: centrality,
-                    smooth: u32::from(smooth),
+                    smooth: u16::from(smooth),
+                    surface: u16::from(!face),
                 };
                 self.n_acc += 1;
                 true
@@ -177,7 +185,7 @@ impl Cell {
         voxel_h: f32,
         cfg: &StackConfig,
     ) {
-        let mut highest: Option<(f32, f32, i32, u32)> = None;
+        let mut highest: Option<(f32, f32, i32, u16, u16)> = None;
         let accs = acc.iter();
         // The voxels that may feed the cell filter: those with enough of the column's
         // central support, or else the best supported one.
@@ -224,13 +232,13 @@ impl Cell {
                     v.var *= 1.0 - k;
                     v.last_frame = frame_no;
                 }
-                if a.sc >= need && highest.is_none_or(|(_, _, i, _)| a.idx > i) {
-                    highest = Some((v.h, v.var, a.idx, a.smooth));
+                if a.sc >= need && highest.is_none_or(|(_, _, i, _, _)| a.idx > i) {
+                    highest = Some((v.h, v.var, a.idx, a.smooth, a.surface));
                 }
             }
         }
         self.n_acc = 0;
-        let Some((hp, vp, _, smooth)) = highest else {
+        let Some((hp, vp, _, smooth, surface)) = highest else {
             return;
         };
         self.updates += 1;
@@ -247,19 +255,28 @@ impl Cell {
                 self.established = true;
             }
         }
-        if self.established {
-            if self.has_estimate {
-                // Eq. 2.
-                let k = self.var / (self.var + vp);
-                self.h -= k * (self.h - hp);
-                self.var *= 1.0 - k;
-            } else {
-                // No prior: the first established measurement is the estimate.
-                self.h = hp;
-                self.var = vp;
-                self.has_estimate = true;
-            }
+        if !self.established {
+            return;
         }
+        // A voxel of steep faces' points alone bounds the column's top from below: below
+        // an estimate of the top it says nothing, and an estimate of such bounds gives way
+        // to the first surface measured.
+        let bound = surface == 0;
+        if !self.has_estimate || (self.bound_only && !bound) {
+            // No prior (or only bounds): this measurement is the estimate.
+            self.h = hp;
+            self.var = vp;
+            self.has_estimate = true;
+            self.bound_only = bound;
+            return;
+        }
+        if bound && !self.bound_only && hp <= self.h {
+            return;
+        }
+        // Eq. 2.
+        let k = self.var / (self.var + vp);
+        self.h -= k * (self.h - hp);
+        self.var *= 1.0 - k;
     }
 
     /// Removes the voxels above `z` (m) that were not measured in frame `frame_no` and
@@ -316,8 +333,16 @@ mod tests {
             Accs::default(),
             Vec::new(),
         );
-        let mut add =
-            |idx: i32| c.accumulate(&mut acc, &mut pool, idx, 0.5 * voxel_h, 1e4, (1.0, true));
+        let mut add = |idx: i32| {
+            c.accumulate(
+                &mut acc,
+                &mut pool,
+                idx,
+                0.5 * voxel_h,
+                1e4,
+                (1.0, true, false),
+            )
+        };
         for idx in [10, 11, 12] {
             assert!(add(idx));
         }
@@ -337,9 +362,54 @@ mod tests {
         let mut c = Cell::default();
         let (mut acc, mut pool) = (Accs::default(), Vec::new());
         for idx in 0..MAX_ACC as i32 {
-            assert!(c.accumulate(&mut acc, &mut pool, idx, 0.0, 1.0, (1.0, false)));
+            assert!(c.accumulate(&mut acc, &mut pool, idx, 0.0, 1.0, (1.0, false, false)));
         }
-        assert!(!c.accumulate(&mut acc, &mut pool, -1, 0.0, 1.0, (1.0, false)));
-        assert!(c.accumulate(&mut acc, &mut pool, 3, 0.0, 1.0, (1.0, false)));
+        assert!(!c.accumulate(&mut acc, &mut pool, -1, 0.0, 1.0, (1.0, false, false)));
+        assert!(c.accumulate(&mut acc, &mut pool, 3, 0.0, 1.0, (1.0, false, false)));
+    }
+
+    /// A steep face's points bound a column's top from below: alone they make its
+    /// estimate, the first surface replaces it, and below a surface's estimate they change
+    /// nothing, while above it they count.
+    #[test]
+    fn a_steep_face_bounds_the_top_from_below() {
+        let cfg = StackConfig::default();
+        let voxel_h = cfg.voxel_height_m as f32;
+        let (mut c, mut st, mut acc, mut pool) = (
+            Cell::default(),
+            Stack::default(),
+            Accs::default(),
+            Vec::new(),
+        );
+        // One frame: `n` points at voxel `idx` (middle), face points or not.
+        let mut frame = |c: &mut Cell, no: u32, idx: i32, face: bool| {
+            for _ in 0..4 {
+                let centrality = if face { 0.0 } else { 1.0 };
+                c.accumulate(
+                    &mut acc,
+                    &mut pool,
+                    idx,
+                    0.5 * voxel_h,
+                    1e4,
+                    (centrality, true, face),
+                );
+            }
+            let held = acc.in_use(usize::from(c.n_acc), &pool);
+            c.apply(&mut st, held, no, voxel_h, &cfg);
+        };
+        let mid = |idx: i32| (idx as f32 + 0.5) * voxel_h;
+        frame(&mut c, 1, 5, true);
+        assert!(c.mapped() && c.bound_only);
+        assert!((c.h - mid(5)).abs() < 1e-6);
+        // The top, seen: it replaces the bound.
+        frame(&mut c, 2, 8, false);
+        assert!(!c.bound_only);
+        assert!((c.h - mid(8)).abs() < 1e-6, "{}", c.h);
+        // A face below it: nothing changes.
+        frame(&mut c, 3, 6, true);
+        assert!((c.h - mid(8)).abs() < 1e-6, "{}", c.h);
+        // A face above it: the top is higher than estimated.
+        frame(&mut c, 4, 10, true);
+        assert!(c.h > mid(8) + 0.5 * voxel_h && !c.bound_only, "{}", c.h);
     }
 }

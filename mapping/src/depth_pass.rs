@@ -2,10 +2,15 @@
 //! into map-frame cells, heights and variances in f32 by short loops without branches, then
 //! scattered into the band lists of [`crate::binned::Binned`].
 
-use crate::binned::{CellPoint, DepthSlice, VAR_MAX_M2, VAR_MIN_M2};
+use crate::binned::{Binning, CellPoint, DepthSlice, FACE, VAR_MAX_M2, VAR_MIN_M2};
 use crate::input::{HeightModel, Reason, Rejections, VarianceConsts};
 use crate::neighbourhood::Neighbourhood;
-use crate::window::{centrality, CellBinner};
+use crate::window::centrality;
+
+/// A steep face's point ([`CellPoint::face`]) says little about the top of the cell it
+/// lands in: its height variance is this many times its sensor variance, so that in a voxel
+/// shared with a surface's points the surface decides the voxel's height.
+const FACE_VARIANCE_SCALE: f32 = 100.0;
 
 /// Per-pixel flags of [`FlatRow`].
 const VALID: u32 = 1;
@@ -55,7 +60,7 @@ struct FlatRow {
 /// Runs the copy for this CPU's instruction set ([`crate::simd`]; the same results).
 pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
-    binning: (&CellBinner, bool),
+    binning: Binning<'_>,
     lists: &mut [Vec<CellPoint>],
     rej: &mut Rejections,
 ) {
@@ -70,7 +75,7 @@ pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
 /// The arguments of [`bin_depth_slice`], for [`crate::simd::dispatch`].
 struct BinSlice<'a, 'b, M: ?Sized, const CENTRALITY: bool> {
     s: DepthSlice<'a, M>,
-    binning: (&'b CellBinner, bool),
+    binning: Binning<'b>,
     lists: &'b mut [Vec<CellPoint>],
     rej: &'b mut Rejections,
 }
@@ -90,11 +95,12 @@ impl<M: HeightModel + ?Sized, const CENTRALITY: bool> pulp::WithSimd
 #[inline(always)]
 fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
-    (binner, smooth): (&CellBinner, bool),
+    binning: Binning<'_>,
     lists: &mut [Vec<CellPoint>],
     rej: &mut Rejections,
 ) {
     let pl = s.place;
+    let (binner, smooth) = (binning.binner, binning.smooth);
     let (x0, y0) = binner.corner_m();
     // Row-major entries of the map-from-sensor rotation.
     let m = pl.rot.cast::<f32>();
@@ -210,6 +216,8 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 cens[i] = centrality(cols[i], rows[i]);
             }
         }
+        let w = s.depth.width() as usize;
+        let faces = binning.faces.and_then(|m| m.get(v * w..(v + 1) * w));
         // The scalar pass: the rare invalid, outside and edge pixels are classified and
         // counted, and the indices of the kept pixels collected (a loop with few live
         // values; the scatter below then reads the kept pixels' values by index).
@@ -251,10 +259,13 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             else {
                 continue;
             };
-            let centrality = if CENTRALITY {
-                cens.get(u).copied().unwrap_or(0.0)
+            let face = faces.and_then(|f| f.get(u)).is_some_and(|&f| f != 0);
+            let (centrality, var) = if face {
+                (FACE, var * FACE_VARIANCE_SCALE)
+            } else if CENTRALITY {
+                (cens.get(u).copied().unwrap_or(0.0), var)
             } else {
-                0.0
+                (0.0, var)
             };
             let smooth_px = r.flags.get(u).is_some_and(|&f| f & SMOOTH != 0);
             match lists.get_mut(band as usize) {

@@ -13,7 +13,7 @@
 
 use crate::error::{self, MappingError};
 use crate::input::{
-    prepare_binned, Binned, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
+    prepare_binned, Binned, Binning, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
     VarianceConsts,
 };
 use crate::window::Window;
@@ -258,7 +258,12 @@ impl ElevationMapper for FankhauserMapper {
             frame,
             &cfg.sensor,
             &mut self.rays,
-            (&self.window.binner(size.div_ceil(BANDS)), false, false),
+            Binning {
+                binner: &self.window.binner(size.div_ceil(BANDS)),
+                centrality: false,
+                smooth: false,
+                faces: None,
+            },
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,
@@ -327,6 +332,7 @@ impl ElevationMapper for FankhauserMapper {
             points_overflow: 0,
             rejected: rej,
             cells_cleared: 0,
+            steep_pushed: 0,
             update_s: start.elapsed().as_secs_f64(),
             prepare_s,
             checks_s: 0.0,

@@ -96,7 +96,7 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
                 idx_f as i32,
                 z_rel,
                 1.0 / p.var_m2,
-                (p.centrality(), p.smooth()),
+                (p.centrality(), p.smooth(), p.face()),
             ) {
                 used += 1;
             } else {

@@ -556,8 +556,8 @@ impl Placement {
 }
 
 pub use crate::binned::{
-    filtered_map_points, prepare_binned, to_map_points, Binned, CellPoint, SLICES, VAR_MAX_M2,
-    VAR_MIN_M2,
+    filtered_map_points, prepare_binned, to_map_points, Binned, Binning, CellPoint, FACE, SLICES,
+    VAR_MAX_M2, VAR_MIN_M2,
 };
 
 #[cfg(test)]

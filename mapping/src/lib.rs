@@ -42,6 +42,7 @@ pub mod post;
 pub mod range2d;
 pub mod simd;
 pub mod stack;
+pub mod steep;
 pub mod stereo;
 pub mod window;
 
@@ -60,6 +61,9 @@ pub struct UpdateStats {
     pub rejected: Rejections,
     /// Columns that lost voxels in the visibility check.
     pub cells_cleared: usize,
+    /// Depth pixels on steep faces moved behind them before binning
+    /// ([`stack::StackConfig::steep_push_sigmas`]; 0 for the other mappers).
+    pub steep_pushed: usize,
     /// Wall time of the update (s).
     pub update_s: f64,
     /// Of which: turning the measurements into map-frame heights and binning them (s).

@@ -40,9 +40,12 @@ use crate::column::{Accs, Cell, Spilled, Stack, Voxel};
 use crate::denoise::Smoother;
 use crate::error::MappingError;
 use crate::fuse::{Band, BandUpdate, Fusion};
-use crate::input::{prepare_binned, Binned, Cloud, PrimeSenseHeight, RayCache, SensorFrame};
+use crate::input::{
+    prepare_binned, Binned, Binning, Cloud, PrimeSenseHeight, RayCache, SensorFrame,
+};
 use crate::polar::Polar;
 use crate::post::{median_filter, MedianStats};
+use crate::steep::{PushFrame, SteepPush};
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
 use rayon::prelude::*;
@@ -71,6 +74,8 @@ pub struct StackMapper {
     los_table: Vec<f32>,
     /// The depth smoothing's buffers.
     smoother: Smoother,
+    /// The buffer of the steep faces' push ([`crate::steep`]).
+    pusher: SteepPush,
     frame_no: u32,
 }
 
@@ -97,6 +102,7 @@ impl StackMapper {
             band_cells,
             los_table: Vec::new(),
             smoother: Smoother::default(),
+            pusher: SteepPush::default(),
             frame_no: 0,
         })
     }
@@ -349,6 +355,7 @@ impl ElevationMapper for StackMapper {
             + self.binned.memory_bytes()
             + self.los_table.capacity() * std::mem::size_of::<f32>()
             + self.smoother.memory_bytes()
+            + self.pusher.memory_bytes()
     }
 
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats {
@@ -369,17 +376,38 @@ impl ElevationMapper for StackMapper {
             Some(image) => frame.with_depth(image),
             None => *frame,
         };
+        let pushed = match frame.cloud() {
+            Cloud::Depth { depth_m, camera } if cfg.steep_push_sigmas > 0.0 => {
+                let up_camera = frame
+                    .map_from_sensor
+                    .rotation
+                    .inverse_transform_vector(&nalgebra::Vector3::z());
+                let f = PushFrame {
+                    camera,
+                    up_camera,
+                    model: &cfg.sensor,
+                    sigmas: cfg.steep_push_sigmas,
+                };
+                Some(self.pusher.push(depth_m, &f))
+            }
+            _ => None,
+        };
+        let frame = &match &pushed {
+            Some((image, _)) => frame.with_depth(image),
+            None => *frame,
+        };
         let band_cells = self.band_cells;
         let size = self.window.size();
         let rej = prepare_binned(
             frame,
             &cfg.sensor,
             &mut self.rays,
-            (
-                &self.window.binner(size.div_ceil(BANDS)),
-                cfg.step_support_fraction > 0.0,
-                cfg.establish_smooth,
-            ),
+            Binning {
+                binner: &self.window.binner(size.div_ceil(BANDS)),
+                centrality: cfg.step_support_fraction > 0.0,
+                smooth: cfg.establish_smooth,
+                faces: pushed.as_ref().map(|_| self.pusher.moved()),
+            },
             BANDS,
             cfg.edge_filter.as_ref(),
             &mut self.binned,
@@ -435,11 +463,16 @@ impl ElevationMapper for StackMapper {
         if let Some(image) = smoothed {
             self.smoother.restore(image);
         }
+        let steep_pushed = pushed.map_or(0, |(image, n)| {
+            self.pusher.restore(image);
+            n
+        });
         UpdateStats {
             points_used: used,
             points_overflow: overflow,
             rejected: rej,
             cells_cleared: cleared,
+            steep_pushed,
             update_s: start.elapsed().as_secs_f64(),
             prepare_s,
             checks_s: checks_start.elapsed().as_secs_f64(),

@@ -36,6 +36,12 @@ pub struct StackConfig {
     /// always the top. 0 is paper 000's rule (the highest voxel); 0.5 (the default) takes
     /// the voxel with most of the support. In [0, 1].
     pub step_support_fraction: f32,
+    /// Faces steeper than 45 degrees (walls, box faces, risers) are solid behind
+    /// themselves: each of their pixels is moved this many depth standard deviations
+    /// `sigma_d` farther along its ray before binning ([`crate::steep`]), so that depth
+    /// noise does not throw a face's points into the floor's cells before it. 0 turns it
+    /// off (an extension of paper 000). Finite, 0 or more.
+    pub steep_push_sigmas: f32,
     /// Run the visibility check.
     pub visibility_check: bool,
     /// Also run the see-through check on depth images (an extension of paper 000): a
@@ -89,6 +95,7 @@ impl Default for StackConfig {
             vitality_threshold: 7,
             establish_smooth: true,
             step_support_fraction: 0.5,
+            steep_push_sigmas: 2.0,
             visibility_check: true,
             visibility_bin_m: 0.01,
             see_through_check: true,
@@ -108,7 +115,7 @@ impl StackConfig {
     /// [`crate::error::MAX_CELLS_PER_SIDE`] cells per side, positive voxel height and
     /// visibility bin, a depth range with `min < max`, an edge filter's angle within
     /// (0, 90) degrees, a depth smoothing's radius within 1 to 4 pixels and positive
-    /// `sigmas`. Returns the window's cells per side.
+    /// `sigmas`, a finite, non-negative steep push. Returns the window's cells per side.
     pub fn validate(&self) -> Result<usize, MappingError> {
         let cells = error::window_cells(
             self.resolution_m,
@@ -122,6 +129,13 @@ impl StackConfig {
                 name: "step_support_fraction",
                 value: f64::from(self.step_support_fraction),
                 reason: "must lie within [0, 1]",
+            });
+        }
+        if !(self.steep_push_sigmas >= 0.0 && self.steep_push_sigmas.is_finite()) {
+            return Err(MappingError::Parameter {
+                name: "steep_push_sigmas",
+                value: f64::from(self.steep_push_sigmas),
+                reason: "must be finite and 0 or more",
             });
         }
         error::positive("visibility_bin_m", self.visibility_bin_m)?;

@@ -110,6 +110,10 @@ pub struct MapArgs {
     /// Turn off the stack mapper's depth smoothing (it then bins the depth as measured).
     #[arg(long)]
     pub no_depth_smoothing: bool,
+    /// Turn off the stack mapper's push of steep faces' pixels behind the faces (it then
+    /// bins them where their depth puts them).
+    #[arg(long)]
+    pub no_steep_push: bool,
     /// Write the stack map without the median filter (hole filling, isolated-cell removal).
     #[arg(long)]
     pub no_median_filter: bool,
@@ -162,6 +166,11 @@ pub fn stack_config(a: &MapArgs) -> Result<StackConfig> {
         see_through_check: d.see_through_check && !a.no_see_through,
         edge_filter: d.edge_filter.filter(|_| !a.no_edge_filter),
         depth_smoothing: d.depth_smoothing.filter(|_| !a.no_depth_smoothing),
+        steep_push_sigmas: if a.no_steep_push {
+            0.0
+        } else {
+            d.steep_push_sigmas
+        },
         median_filter: d.median_filter.filter(|_| !a.no_median_filter),
         ..d
     })

@@ -29,6 +29,9 @@ pub struct MapBenchArgs {
     /// Time the stack mapper without its depth smoothing.
     #[arg(long)]
     no_depth_smoothing: bool,
+    /// Time the stack mapper without its push of steep faces' pixels.
+    #[arg(long)]
+    no_steep_push: bool,
     /// Also time each mapper on the portable (x86-64-v2) copies of the vectorised loops,
     /// taking turns with the others frame by frame, for the ratio to the copies this CPU
     /// runs (AVX2 where present; the same maps: stride_mapping::simd).
@@ -119,6 +122,11 @@ pub fn bench_map(a: MapBenchArgs) -> Result<()> {
             visibility_check: !a.no_visibility,
             see_through_check: !a.no_see_through,
             depth_smoothing: d.depth_smoothing.filter(|_| !a.no_depth_smoothing),
+            steep_push_sigmas: if a.no_steep_push {
+                0.0
+            } else {
+                d.steep_push_sigmas
+            },
             ..d
         };
         if a.portable {

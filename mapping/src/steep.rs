@@ -1,0 +1,322 @@
+//! Points of steep faces moved behind them, before the stack map reads a depth image.
+//!
+//! Depth noise moves a point along its ray. At range the rays are nearly horizontal, so the
+//! points of a wall or a box's face seen head-on spread over several 1 cm cells in front of
+//! it, and the floor's cells there take the face's heights: on the synthetic lab's walks
+//! most of the map's error near steps. Smoothing ([`crate::denoise`]) shrinks the
+//! independent part of that noise, not the part a structured-light sensor shares between
+//! neighbouring pixels (its disparity steps, its correlated blocks).
+//!
+//! A face steeper than [`STEEP_DEG`] is solid behind itself in a 2.5-D map: its cells are
+//! the obstacle's. So each pixel on such a face is moved `sigmas` standard deviations
+//! `sigma_d(d)` farther along its ray, which puts nearly all of its points at or behind
+//! the face, where the obstacle's cells are, and leaves the floor before it to the floor's
+//! points. Its height changes by the ray's slope times that distance only. Nothing else
+//! moves: floors, ramps, box tops, pixels at a depth jump (where the slope is not the
+//! surface's) and pixels near the border or without a return.
+//!
+//! The surface's slope comes from the 3-D points [`RADIUS_PX`] pixels to either side of the
+//! pixel, along the row and along the column (the cross product of the two differences),
+//! against the world's up direction seen in the camera frame.
+
+use crate::input::HeightModel;
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use stride_core::camera::PinholeCamera;
+use stride_core::image::DepthImage;
+
+/// Half the baseline of the slope estimate (px): the neighbours 3 pixels away on each side,
+/// far enough apart that the sensor's disparity steps (about 2.6 cm at 3 m for a Kinect)
+/// do not tip a wall's slope, near enough to stay on one face of a 10 cm box at 3 m.
+pub const RADIUS_PX: usize = 3;
+
+/// A face is steep when its normal is more than this far from the vertical (deg): walls,
+/// box faces and step risers, not walkable slopes.
+pub const STEEP_DEG: f32 = 45.0;
+
+/// The neighbours joining the slope estimate differ from the pixel's depth by at most this
+/// fraction of it: a face seen 80 degrees from head-on still passes, a depth jump (the
+/// top edge of a box against the floor behind it) does not.
+const JUMP_REL: f32 = 0.1;
+
+/// The buffer of the moved image, kept from frame to frame so that a frame allocates
+/// nothing.
+#[derive(Debug, Default)]
+pub(crate) struct SteepPush {
+    out: Option<DepthImage>,
+    /// 1 for each pixel of the last frame that was moved, row-major.
+    moved: Vec<u8>,
+}
+
+/// What [`SteepPush::push`] needs of the frame besides its depth image.
+pub(crate) struct PushFrame<'a, M: ?Sized> {
+    /// The camera the depth image is registered to.
+    pub(crate) camera: &'a PinholeCamera,
+    /// The world's up direction in the camera frame (unit).
+    pub(crate) up_camera: Vector3<f64>,
+    /// The sensor model giving `sigma_d`.
+    pub(crate) model: &'a M,
+    /// How far a steep pixel moves, in `sigma_d`.
+    pub(crate) sigmas: f32,
+}
+
+impl SteepPush {
+    /// Bytes held.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        self.out
+            .as_ref()
+            .map_or(0, |o| std::mem::size_of_val(o.as_slice()))
+            + self.moved.capacity()
+    }
+
+    /// Which pixels of the last [`SteepPush::push`] moved (1) or not (0), row-major: their
+    /// points are on a face, a bound below the height of the cell they land in, not a
+    /// measurement of its top ([`crate::input::CellPoint::face`]).
+    pub(crate) fn moved(&self) -> &[u8] {
+        &self.moved
+    }
+
+    /// Takes the output image out (to be given back with [`SteepPush::restore`]): `depth`
+    /// (m, 0 or non-finite without a return) with each pixel on a steep face moved
+    /// `f.sigmas` `sigma_d` farther, and the number of pixels moved. The image has
+    /// `depth`'s size.
+    pub(crate) fn push<M: HeightModel + ?Sized>(
+        &mut self,
+        depth: &DepthImage,
+        f: &PushFrame<'_, M>,
+    ) -> (DepthImage, usize) {
+        let (w, h) = (depth.width() as usize, depth.height() as usize);
+        let mut out = match self.out.take() {
+            Some(o) if (o.width(), o.height()) == (depth.width(), depth.height()) => o,
+            _ => DepthImage::filled(depth.width(), depth.height(), 0.0),
+        };
+        let src = depth.as_slice();
+        self.moved.clear();
+        self.moved.resize(src.len(), 0);
+        let consts = Consts {
+            r: RADIUS_PX,
+            cos2: STEEP_DEG.to_radians().cos().powi(2),
+            up: f.up_camera.cast::<f32>().into(),
+            inv_f: [1.0 / f.camera.fx() as f32, 1.0 / f.camera.fy() as f32],
+            c: [f.camera.cx() as f32, f.camera.cy() as f32],
+            sigmas: f.sigmas,
+        };
+        let pushed = out
+            .as_mut_slice()
+            .par_chunks_mut(w.max(1))
+            .zip(self.moved.par_chunks_mut(w.max(1)))
+            .enumerate()
+            .map(|(v, (dst, moved))| {
+                let at = |y: usize| src.get(y * w..(y + 1) * w).unwrap_or(&[]);
+                let row = at(v);
+                for (o, &i) in dst.iter_mut().zip(row) {
+                    *o = i;
+                }
+                let r = consts.r;
+                if v < r || v + r >= h {
+                    return 0;
+                }
+                crate::simd::dispatch(PushRow {
+                    rows: [row, at(v - r), at(v + r)],
+                    v,
+                    dst,
+                    moved,
+                    k: &consts,
+                    model: f.model,
+                });
+                moved.iter().map(|&m| usize::from(m)).sum::<usize>()
+            })
+            .sum();
+        (out, pushed)
+    }
+
+    /// Gives back the image [`SteepPush::push`] returned, for the next frame.
+    pub(crate) fn restore(&mut self, out: DepthImage) {
+        self.out = Some(out);
+    }
+}
+
+/// A frame's constants of [`PushRow`].
+struct Consts {
+    /// [`RADIUS_PX`].
+    r: usize,
+    /// Squared cosine of [`STEEP_DEG`].
+    cos2: f32,
+    /// The world's up direction in the camera frame.
+    up: [f32; 3],
+    /// `1 / fx`, `1 / fy` (1/px) and the principal point `cx`, `cy` (px).
+    inv_f: [f32; 2],
+    c: [f32; 2],
+    /// How far a steep pixel moves, in `sigma_d`.
+    sigmas: f32,
+}
+
+/// One row `v` of [`SteepPush::push`], run by [`crate::simd::dispatch`] in the copy for
+/// this CPU's instruction set (the same results): `rows` are the depths of rows `v`,
+/// `v - r` and `v + r` (m); `dst` (already a copy of row `v`) takes the moved depths and
+/// `moved` a 1 for each pixel moved.
+struct PushRow<'a, M: ?Sized> {
+    rows: [&'a [f32]; 3],
+    v: usize,
+    dst: &'a mut [f32],
+    moved: &'a mut [u8],
+    k: &'a Consts,
+    model: &'a M,
+}
+
+impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
+    type Output = ();
+
+    #[inline(always)]
+    fn with_simd<S: pulp::Simd>(self, _: S) {
+        let Self {
+            rows: [row, above, below],
+            v,
+            dst,
+            moved,
+            k,
+            model,
+        } = self;
+        let r = k.r;
+        let w = row.len().min(above.len()).min(below.len());
+        let Some(n) = w.checked_sub(2 * r) else {
+            return;
+        };
+        // Every slice has length `n` (pixel u = i + r), so the bounds checks go and the
+        // loop, free of branches, vectorises.
+        let (Some(c), Some(left), Some(right), Some(up_d), Some(down_d)) = (
+            row.get(r..r + n),
+            row.get(..n),
+            row.get(2 * r..2 * r + n),
+            above.get(r..r + n),
+            below.get(r..r + n),
+        ) else {
+            return;
+        };
+        let (Some(dst), Some(moved)) = (dst.get_mut(r..r + n), moved.get_mut(r..r + n)) else {
+            return;
+        };
+        let [ifx, ify] = k.inv_f;
+        let [cx, cy] = k.c;
+        let [ux, uy, uz] = k.up;
+        let rf = r as f32;
+        // Normalised coordinates of rows v, v - r, v + r and the column offset of r pixels.
+        let y = (v as f32 - cy) * ify;
+        let (y_up, y_down) = (y - rf * ify, y + rf * ify);
+        let dx = rf * ifx;
+        for i in 0..n {
+            let (d, dl, dr, da, db) = (c[i], left[i], right[i], up_d[i], down_d[i]);
+            let x = ((i + r) as f32 - cx) * ifx;
+            let near = |q: f32| (q > 0.0) & ((q - d).abs() <= JUMP_REL * d);
+            let ok = (d > 0.0) & (d < f32::INFINITY) & near(dl) & near(dr) & near(da) & near(db);
+            // The 3-D differences across the pixel along the row and along the column.
+            let a = [(x + dx) * dr - (x - dx) * dl, y * (dr - dl), dr - dl];
+            let b = [x * (db - da), y_down * db - y_up * da, db - da];
+            let nrm = [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ];
+            let up_n = nrm[0] * ux + nrm[1] * uy + nrm[2] * uz;
+            let nn = nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2];
+            let steep = ok & (up_n * up_n < k.cos2 * nn);
+            let pushed = d + k.sigmas * model.depth_sigma_f32(d);
+            dst[i] = if steep { pushed } else { d };
+            moved[i] = u8::from(steep);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::PrimeSenseHeight;
+
+    const CAM: PinholeCamera = PinholeCamera::KINECT_DEFAULT;
+
+    /// A depth image of `depth(u, v)` (m), pushed by 2 `sigma_d` for a camera looking
+    /// horizontally (the world's up is the camera's -y).
+    fn pushed(depth: impl Fn(usize, usize) -> f32) -> (DepthImage, DepthImage, usize) {
+        let (w, h) = (CAM.width(), CAM.height());
+        let data = (0..h as usize)
+            .flat_map(|v| (0..w as usize).map(move |u| (u, v)))
+            .map(|(u, v)| depth(u, v))
+            .collect();
+        let image = DepthImage::from_vec(w, h, data).unwrap();
+        let model = PrimeSenseHeight::default();
+        let f = PushFrame {
+            camera: &CAM,
+            up_camera: -Vector3::y(),
+            model: &model,
+            sigmas: 2.0,
+        };
+        let (out, n) = SteepPush::default().push(&image, &f);
+        (image, out, n)
+    }
+
+    fn at(image: &DepthImage, u: usize, v: usize) -> f32 {
+        image.as_slice()[v * image.width() as usize + u]
+    }
+
+    #[test]
+    fn a_wall_seen_head_on_moves_back_by_its_noise() {
+        let (before, after, n) = pushed(|_, _| 2.0);
+        let sigma = PrimeSenseHeight::default().depth_sigma_f32(2.0);
+        let r = RADIUS_PX;
+        // Every pixel whose four neighbours exist moves; the border stays.
+        assert_eq!(n, (640 - 2 * r) * (480 - 2 * r));
+        assert!((at(&after, 320, 240) - (2.0 + 2.0 * sigma)).abs() < 1e-6);
+        assert_eq!(at(&after, 0, 240), at(&before, 0, 240));
+        assert_eq!(at(&after, 320, r - 1), 2.0);
+    }
+
+    #[test]
+    fn a_floor_and_a_ramp_stay() {
+        // The floor 0.5 m below a camera looking horizontally (y down), seen below the
+        // horizon; nothing above it.
+        let floor = |_: usize, v: usize| {
+            let yn = (v as f32 - 239.5) / 525.0;
+            if yn > 0.05 {
+                0.5 / yn
+            } else {
+                0.0
+            }
+        };
+        assert_eq!(pushed(floor).2, 0);
+        // A ramp rising 40 degrees away from the camera: still walkable, not moved.
+        let t = 40f32.to_radians().tan();
+        let ramp = |_: usize, v: usize| {
+            // Points (y, z) with y = 0.5 - t (z - 1) and y = yn z: z = (0.5 + t) / (yn + t).
+            let yn = (v as f32 - 239.5) / 525.0;
+            let z = (0.5 + t) / (yn + t);
+            if z > 0.0 && z < 4.0 {
+                z
+            } else {
+                0.0
+            }
+        };
+        assert_eq!(pushed(ramp).2, 0);
+    }
+
+    #[test]
+    fn pixels_beside_a_depth_jump_and_without_returns_stay() {
+        // A wall at 2 m on the left, 3 m on the right, a hole in the middle row.
+        let (_, after, n) = pushed(|u, v| match (u < 320, v == 240) {
+            (_, true) => 0.0,
+            (true, false) => 2.0,
+            (false, false) => 3.0,
+        });
+        let r = RADIUS_PX;
+        // Within r of the jump nothing moves, nor r rows from the hole's row (a
+        // neighbour without a return), nor the hole.
+        assert_eq!(at(&after, 319, 100), 2.0);
+        assert_eq!(at(&after, 320, 100), 3.0);
+        assert_eq!(at(&after, 100, 240 - r), 2.0);
+        assert_eq!(at(&after, 100, 240), 0.0);
+        assert!(at(&after, 100, 240 - 1) > 2.0);
+        assert!(at(&after, 100, 100) > 2.0);
+        assert!(at(&after, 500, 100) > 3.0);
+        let rows = 480 - 2 * r - 3;
+        assert_eq!(n, (640 - 2 * r - 2 * r) * rows);
+    }
+}
