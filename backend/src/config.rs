@@ -115,7 +115,7 @@ impl Default for BackendConfig {
     fn default() -> Self {
         Self {
             mode: BackendMode::BundleAdjustment,
-            window_keyframes: 10,
+            window_keyframes: 6,
             max_fixed_keyframes: 20,
             local_iterations: 5,
             optimize_every_keyframes: 1,
