@@ -32,6 +32,9 @@ pub struct MapperRun {
     pub rejected: Rejections,
     /// Columns cleared by the visibility check.
     pub cells_cleared: usize,
+    /// Depth pixels of steep faces moved behind them
+    /// ([`stride_mapping::UpdateStats::steep_pushed`]).
+    pub steep_pushed: usize,
     /// What the median filter changed (stack mapper only).
     pub median: MedianStats,
     /// Comparison with ground truth.
@@ -101,9 +104,11 @@ pub fn map_sequence(
 ) -> Result<(Vec<MapperRun>, FrameCounts), PipelineError> {
     let stream = seq.stream(max_frames, 4);
     let mut counts = FrameCounts::default();
-    let mut stats: Vec<(Vec<f64>, [usize; 2], Rejections, usize)> = mappers
+    // Per mapper: update times (s), [points used, overflowing], rejections, [columns
+    // cleared, steep pixels pushed].
+    let mut stats: Vec<(Vec<f64>, [usize; 2], Rejections, [usize; 2])> = mappers
         .iter()
-        .map(|_| (Vec::new(), [0, 0], Rejections::default(), 0))
+        .map(|_| (Vec::new(), [0, 0], Rejections::default(), [0, 0]))
         .collect();
     for item in stream {
         counts.frames += 1;
@@ -130,11 +135,12 @@ pub fn map_sequence(
             s.1[0] += u.points_used;
             s.1[1] += u.points_overflow;
             s.2.add(&u.rejected);
-            s.3 += u.cells_cleared;
+            s.3[0] += u.cells_cleared;
+            s.3[1] += u.steep_pushed;
         }
     }
     let mut runs = Vec::new();
-    for (m, (update_s, [points_used, points_overflow], rejected, cells_cleared)) in
+    for (m, (update_s, [points_used, points_overflow], rejected, [cells_cleared, steep_pushed])) in
         mappers.iter().zip(stats)
     {
         // The mapper's own post-processing (the stack map's median fill; none for the
@@ -151,6 +157,7 @@ pub fn map_sequence(
             points_overflow,
             rejected,
             cells_cleared,
+            steep_pushed,
             median,
             score,
             phantoms,

@@ -107,6 +107,10 @@ fn stack_map_beats_the_baseline_and_leaves_no_phantoms() {
     assert_eq!(s["phantoms"]["phantoms"], 0, "{}", s["phantoms"]);
     assert!(num(&f["phantoms"], "phantoms") > 100.0, "{}", f["phantoms"]);
     assert!(num(&s["rejected"], "depth_edge") > 0.0);
+    // The lab's steps and walls are steep faces: the stack map moves their pixels behind
+    // them and counts them; the baseline reads the depth as measured.
+    assert!(num(s, "steep_pixels_pushed") > 0.0, "{s}");
+    assert_eq!(f["steep_pixels_pushed"], 0, "{f}");
     // Every layer and the previews are written.
     for file in [
         "elevation.npy",

@@ -381,7 +381,7 @@ mod tests {
             Accs::default(),
             Vec::new(),
         );
-        // One frame: `n` points at voxel `idx` (middle), face points or not.
+        // One frame: four points in the middle of voxel `idx`, a face's or not.
         let mut frame = |c: &mut Cell, no: u32, idx: i32, face: bool| {
             for _ in 0..4 {
                 let centrality = if face { 0.0 } else { 1.0 };

@@ -278,6 +278,7 @@ pub fn run_json(r: &MapperRun, counts: &FrameCounts) -> Value {
         serde_json::to_value(r.rejected).unwrap_or(Value::Null),
     );
     m.insert("cells_cleared_by_visibility".into(), json!(r.cells_cleared));
+    m.insert("steep_pixels_pushed".into(), json!(r.steep_pushed));
     m.insert(
         "archive_dropped_cells".into(),
         json!(r.archive_dropped_cells),
