@@ -13,7 +13,7 @@ use stride_mapping::metrics::{
     compare, compare_over_seen, floor_fit, phantoms, FloorFit, MapScore, PhantomScore, SeenScore,
 };
 use stride_mapping::post::MedianStats;
-use stride_mapping::{ElevationMapper, MapLayers};
+use stride_mapping::{ElevationMapper, MapLayers, UpdateStats};
 
 /// A mapper's results over the sequence.
 pub struct MapperRun {
@@ -92,6 +92,28 @@ pub struct FrameCounts {
     pub unreadable: usize,
 }
 
+/// One mapper's updates over a sequence, summed ([`UpdateStats`] per frame).
+#[derive(Default)]
+struct Tally {
+    update_s: Vec<f64>,
+    points_used: usize,
+    points_overflow: usize,
+    rejected: Rejections,
+    cells_cleared: usize,
+    steep_pushed: usize,
+}
+
+impl Tally {
+    fn add(&mut self, u: &UpdateStats) {
+        self.update_s.push(u.update_s);
+        self.points_used += u.points_used;
+        self.points_overflow += u.points_overflow;
+        self.rejected.add(&u.rejected);
+        self.cells_cleared += u.cells_cleared;
+        self.steep_pushed += u.steep_pushed;
+    }
+}
+
 /// Maps a sequence with the given poses into each mapper; returns per-mapper runs, each
 /// map as its mapper finishes it (the stack map's median fill per its configuration).
 pub fn map_sequence(
@@ -104,12 +126,7 @@ pub fn map_sequence(
 ) -> Result<(Vec<MapperRun>, FrameCounts), PipelineError> {
     let stream = seq.stream(max_frames, 4);
     let mut counts = FrameCounts::default();
-    // Per mapper: update times (s), [points used, overflowing], rejections, [columns
-    // cleared, steep pixels pushed].
-    let mut stats: Vec<(Vec<f64>, [usize; 2], Rejections, [usize; 2])> = mappers
-        .iter()
-        .map(|_| (Vec::new(), [0, 0], Rejections::default(), [0, 0]))
-        .collect();
+    let mut stats: Vec<Tally> = mappers.iter().map(|_| Tally::default()).collect();
     for item in stream {
         counts.frames += 1;
         on_frame();
@@ -130,19 +147,11 @@ pub fn map_sequence(
         counts.mapped += 1;
         let sf = SensorFrame::depth(&frame.depth_m, &seq.camera().camera, pose, frame.t_depth_s)?;
         for (m, s) in mappers.iter_mut().zip(stats.iter_mut()) {
-            let u = m.integrate(&sf);
-            s.0.push(u.update_s);
-            s.1[0] += u.points_used;
-            s.1[1] += u.points_overflow;
-            s.2.add(&u.rejected);
-            s.3[0] += u.cells_cleared;
-            s.3[1] += u.steep_pushed;
+            s.add(&m.integrate(&sf));
         }
     }
     let mut runs = Vec::new();
-    for (m, (update_s, [points_used, points_overflow], rejected, [cells_cleared, steep_pushed])) in
-        mappers.iter().zip(stats)
-    {
+    for (m, t) in mappers.iter().zip(stats) {
         // The mapper's own post-processing (the stack map's median fill; none for the
         // baseline).
         let (layers, median) = m.finished();
@@ -152,12 +161,12 @@ pub fn map_sequence(
         runs.push(MapperRun {
             name: m.name(),
             layers,
-            update_s,
-            points_used,
-            points_overflow,
-            rejected,
-            cells_cleared,
-            steep_pushed,
+            update_s: t.update_s,
+            points_used: t.points_used,
+            points_overflow: t.points_overflow,
+            rejected: t.rejected,
+            cells_cleared: t.cells_cleared,
+            steep_pushed: t.steep_pushed,
             median,
             score,
             phantoms,
