@@ -26,7 +26,12 @@ pub(crate) struct Archived {
     pub(crate) updates: u32,
     /// Vitality counter.
     pub(crate) vitality: u8,
+    /// The estimate rests on steep faces' points alone (`Cell::bound_only`).
+    pub(crate) bound_only: bool,
 }
+
+// Still 16 bytes a cell (the flag sits in the vitality's padding).
+const _: () = assert!(std::mem::size_of::<Archived>() == 16);
 
 impl Archived {
     const EMPTY: Self = Self {
@@ -34,6 +39,7 @@ impl Archived {
         var: f32::NAN,
         updates: 0,
         vitality: 0,
+        bound_only: false,
     };
 }
 
@@ -181,6 +187,7 @@ mod tests {
             var: 1e-4,
             updates: 3,
             vitality: 9,
+            bound_only: false,
         }
     }
 

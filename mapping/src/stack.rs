@@ -164,6 +164,7 @@ impl StackMapper {
                             var: c.var,
                             vitality: c.vitality,
                             updates: c.updates,
+                            bound_only: c.bound_only,
                         },
                     );
                 }
@@ -210,6 +211,7 @@ impl StackMapper {
                 n_voxels: 1,
                 has_estimate: true,
                 established: true,
+                bound_only: a.bound_only,
                 ..Cell::default()
             };
             if let Some(v) = st.voxels.first_mut() {
