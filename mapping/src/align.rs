@@ -249,6 +249,10 @@ fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> 
             let (lo, hi) = sensor.range_m();
             let hi = hi.min(cfg.max_depth_m);
             let mut row = Vec::new();
+            // A steep face's pixels are left out: the map holds them behind the face
+            // (`crate::steep`), the view as measured, and neither is the height of the
+            // cell they land in.
+            let push = mapper.config().steep_push_sigmas > 0.0;
             for v in (0..depth_m.height()).step_by(stride) {
                 rays.row(v as usize, depth_m.width() as usize, &mut row);
                 for u in (0..depth_m.width()).step_by(stride) {
@@ -258,7 +262,10 @@ fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> 
                     let Some(&(xn, yn)) = row.get(u as usize) else {
                         continue;
                     };
-                    if !(d >= lo && d <= hi) {
+                    if !(d >= lo && d <= hi)
+                        || (push
+                            && crate::steep::is_steep(depth_m, camera, &r3, u as usize, v as usize))
+                    {
                         continue;
                     }
                     let px = DepthPixel {

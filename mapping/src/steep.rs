@@ -136,6 +136,71 @@ impl SteepPush {
     }
 }
 
+/// Whether a pixel lies on a steep face: `d` = [its depth, the depths `r` pixels to its
+/// left, right, above and below] (m), `xy` = [its normalised x, y, the y of the rows above
+/// and below, the x offset of `r` pixels], `up` the world's up in the camera frame and
+/// `cos2` the squared cosine of [`STEEP_DEG`]. False when a depth is missing or a
+/// neighbour lies beyond [`JUMP_REL`]. Free of branches (it runs in vectorised loops).
+#[inline(always)]
+fn steep_at(
+    [d, dl, dr, da, db]: [f32; 5],
+    [x, y, y_up, y_down, dx]: [f32; 5],
+    [ux, uy, uz]: [f32; 3],
+    cos2: f32,
+) -> bool {
+    let near = |q: f32| (q > 0.0) & ((q - d).abs() <= JUMP_REL * d);
+    let ok = (d > 0.0) & (d < f32::INFINITY) & near(dl) & near(dr) & near(da) & near(db);
+    // The 3-D differences across the pixel along the row and along the column.
+    let a = [(x + dx) * dr - (x - dx) * dl, y * (dr - dl), dr - dl];
+    let b = [x * (db - da), y_down * db - y_up * da, db - da];
+    let nrm = [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ];
+    let up_n = nrm[0] * ux + nrm[1] * uy + nrm[2] * uz;
+    let nn = nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2];
+    ok & (up_n * up_n < cos2 * nn)
+}
+
+/// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`], seen by
+/// `camera` whose frame has the world's up along `up_camera`; false near the border, where
+/// a depth is missing or across a depth jump. The test [`SteepPush`] moves pixels by, one
+/// pixel at a time (for sampled pixels, as the view alignment takes them).
+pub(crate) fn is_steep(
+    depth: &DepthImage,
+    camera: &PinholeCamera,
+    up_camera: &Vector3<f64>,
+    u: usize,
+    v: usize,
+) -> bool {
+    let r = RADIUS_PX;
+    let (w, h) = (depth.width() as usize, depth.height() as usize);
+    if u < r || v < r || u + r >= w || v + r >= h {
+        return false;
+    }
+    let at = |u: usize, v: usize| depth.as_slice().get(v * w + u).copied().unwrap_or(0.0);
+    let (ifx, ify) = (1.0 / camera.fx() as f32, 1.0 / camera.fy() as f32);
+    let (x, y) = (
+        (u as f32 - camera.cx() as f32) * ifx,
+        (v as f32 - camera.cy() as f32) * ify,
+    );
+    let rf = r as f32;
+    let up = up_camera.cast::<f32>();
+    steep_at(
+        [
+            at(u, v),
+            at(u - r, v),
+            at(u + r, v),
+            at(u, v - r),
+            at(u, v + r),
+        ],
+        [x, y, y - rf * ify, y + rf * ify, rf * ifx],
+        [up.x, up.y, up.z],
+        STEEP_DEG.to_radians().cos().powi(2),
+    )
+}
+
 /// A frame's constants of [`PushRow`].
 struct Consts {
     /// [`RADIUS_PX`].
@@ -205,21 +270,14 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
         let (y_up, y_down) = (y - rf * ify, y + rf * ify);
         let dx = rf * ifx;
         for i in 0..n {
-            let (d, dl, dr, da, db) = (c[i], left[i], right[i], up_d[i], down_d[i]);
+            let d = c[i];
             let x = ((i + r) as f32 - cx) * ifx;
-            let near = |q: f32| (q > 0.0) & ((q - d).abs() <= JUMP_REL * d);
-            let ok = (d > 0.0) & (d < f32::INFINITY) & near(dl) & near(dr) & near(da) & near(db);
-            // The 3-D differences across the pixel along the row and along the column.
-            let a = [(x + dx) * dr - (x - dx) * dl, y * (dr - dl), dr - dl];
-            let b = [x * (db - da), y_down * db - y_up * da, db - da];
-            let nrm = [
-                a[1] * b[2] - a[2] * b[1],
-                a[2] * b[0] - a[0] * b[2],
-                a[0] * b[1] - a[1] * b[0],
-            ];
-            let up_n = nrm[0] * ux + nrm[1] * uy + nrm[2] * uz;
-            let nn = nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2];
-            let steep = ok & (up_n * up_n < k.cos2 * nn);
+            let steep = steep_at(
+                [d, left[i], right[i], up_d[i], down_d[i]],
+                [x, y, y_up, y_down, dx],
+                [ux, uy, uz],
+                k.cos2,
+            );
             let pushed = d + k.sigmas * model.depth_sigma_f32(d);
             dst[i] = if steep { pushed } else { d };
             moved[i] = u8::from(steep);
@@ -318,5 +376,37 @@ mod tests {
         assert!(at(&after, 500, 100) > 3.0);
         let rows = 480 - 2 * r - 3;
         assert_eq!(n, (640 - 2 * r - 2 * r) * rows);
+    }
+
+    #[test]
+    fn the_one_pixel_test_agrees_with_the_push() {
+        // A wall at 2 m on the left and the floor on the right half, below the horizon.
+        let depth = |u: usize, v: usize| {
+            let yn = (v as f32 - 239.5) / 525.0;
+            match (u < 320, yn > 0.05) {
+                (true, _) => 2.0,
+                (false, true) => 0.5 / yn,
+                (false, false) => 0.0,
+            }
+        };
+        let (image, _, n) = pushed(depth);
+        let model = PrimeSenseHeight::default();
+        let f = PushFrame {
+            camera: &CAM,
+            up_camera: -Vector3::y(),
+            model: &model,
+            sigmas: 2.0,
+        };
+        let mut push = SteepPush::default();
+        push.push(&image, &f);
+        let mut agree = 0;
+        for v in (0..480).step_by(7) {
+            for u in (0..640).step_by(7) {
+                let one = is_steep(&image, &CAM, &-Vector3::y(), u, v);
+                assert_eq!(one, push.moved()[v * 640 + u] == 1, "({u}, {v})");
+                agree += usize::from(one);
+            }
+        }
+        assert!(agree > 1000 && n > 100_000, "{agree} {n}");
     }
 }
