@@ -327,12 +327,8 @@ mod tests {
     fn a_column_measured_over_many_voxels_keeps_every_measurement() {
         let cfg = StackConfig::default();
         let voxel_h = cfg.voxel_height_m as f32;
-        let (mut c, mut st, mut acc, mut pool) = (
-            Cell::default(),
-            Stack::default(),
-            Accs::default(),
-            Vec::new(),
-        );
+        let (mut c, mut st, mut acc, mut pool): (Cell, Stack, Accs, Vec<Spilled>) =
+            Default::default();
         let mut add = |idx: i32| {
             c.accumulate(
                 &mut acc,
@@ -375,12 +371,8 @@ mod tests {
     fn a_steep_face_bounds_the_top_from_below() {
         let cfg = StackConfig::default();
         let voxel_h = cfg.voxel_height_m as f32;
-        let (mut c, mut st, mut acc, mut pool) = (
-            Cell::default(),
-            Stack::default(),
-            Accs::default(),
-            Vec::new(),
-        );
+        let (mut c, mut st, mut acc, mut pool): (Cell, Stack, Accs, Vec<Spilled>) =
+            Default::default();
         // One frame: four points in the middle of voxel `idx`, a face's or not.
         let mut frame = |c: &mut Cell, no: u32, idx: i32, face: bool| {
             for _ in 0..4 {

@@ -109,13 +109,19 @@ impl SteepPush {
             .map(|(v, (dst, moved))| {
                 let at = |y: usize| src.get(y * w..(y + 1) * w).unwrap_or(&[]);
                 let row = at(v);
-                for (o, &i) in dst.iter_mut().zip(row) {
-                    *o = i;
-                }
                 let r = consts.r;
-                if v < r || v + r >= h {
+                let copy = |dst: &mut [f32], from: usize| {
+                    for (o, &i) in dst.iter_mut().zip(row.get(from..).unwrap_or(&[])) {
+                        *o = i;
+                    }
+                };
+                if v < r || v + r >= h || w <= 2 * r {
+                    copy(dst, 0);
                     return 0;
                 }
+                // The row pass writes pixels r..w - r; the border keeps the input.
+                copy(dst.get_mut(..r).unwrap_or(&mut []), 0);
+                copy(dst.get_mut(w - r..).unwrap_or(&mut []), w - r);
                 crate::simd::dispatch(PushRow {
                     rows: [row, at(v - r), at(v + r)],
                     v,
@@ -218,7 +224,7 @@ struct Consts {
 
 /// One row `v` of [`SteepPush::push`], run by [`crate::simd::dispatch`] in the copy for
 /// this CPU's instruction set (the same results): `rows` are the depths of rows `v`,
-/// `v - r` and `v + r` (m); `dst` (already a copy of row `v`) takes the moved depths and
+/// `v - r` and `v + r` (m); `dst` takes the depths of pixels `r..w - r`, moved or not, and
 /// `moved` a 1 for each pixel moved.
 struct PushRow<'a, M: ?Sized> {
     rows: [&'a [f32]; 3],
@@ -293,8 +299,9 @@ mod tests {
     const CAM: PinholeCamera = PinholeCamera::KINECT_DEFAULT;
 
     /// A depth image of `depth(u, v)` (m), pushed by 2 `sigma_d` for a camera looking
-    /// horizontally (the world's up is the camera's -y).
-    fn pushed(depth: impl Fn(usize, usize) -> f32) -> (DepthImage, DepthImage, usize) {
+    /// horizontally (the world's up is the camera's -y): the input, the output, the pixels
+    /// moved and which.
+    fn pushed(depth: impl Fn(usize, usize) -> f32) -> (DepthImage, DepthImage, usize, Vec<u8>) {
         let (w, h) = (CAM.width(), CAM.height());
         let data = (0..h as usize)
             .flat_map(|v| (0..w as usize).map(move |u| (u, v)))
@@ -308,8 +315,9 @@ mod tests {
             model: &model,
             sigmas: 2.0,
         };
-        let (out, n) = SteepPush::default().push(&image, &f);
-        (image, out, n)
+        let mut push = SteepPush::default();
+        let (out, n) = push.push(&image, &f);
+        (image, out, n, push.moved().to_vec())
     }
 
     fn at(image: &DepthImage, u: usize, v: usize) -> f32 {
@@ -318,7 +326,7 @@ mod tests {
 
     #[test]
     fn a_wall_seen_head_on_moves_back_by_its_noise() {
-        let (before, after, n) = pushed(|_, _| 2.0);
+        let (before, after, n, _) = pushed(|_, _| 2.0);
         let sigma = PrimeSenseHeight::default().depth_sigma_f32(2.0);
         let r = RADIUS_PX;
         // Every pixel whose four neighbours exist moves; the border stays.
@@ -359,7 +367,7 @@ mod tests {
     #[test]
     fn pixels_beside_a_depth_jump_and_without_returns_stay() {
         // A wall at 2 m on the left, 3 m on the right, a hole in the middle row.
-        let (_, after, n) = pushed(|u, v| match (u < 320, v == 240) {
+        let (_, after, n, _) = pushed(|u, v| match (u < 320, v == 240) {
             (_, true) => 0.0,
             (true, false) => 2.0,
             (false, false) => 3.0,
@@ -389,21 +397,12 @@ mod tests {
                 (false, false) => 0.0,
             }
         };
-        let (image, _, n) = pushed(depth);
-        let model = PrimeSenseHeight::default();
-        let f = PushFrame {
-            camera: &CAM,
-            up_camera: -Vector3::y(),
-            model: &model,
-            sigmas: 2.0,
-        };
-        let mut push = SteepPush::default();
-        push.push(&image, &f);
+        let (image, _, n, moved) = pushed(depth);
         let mut agree = 0;
         for v in (0..480).step_by(7) {
             for u in (0..640).step_by(7) {
                 let one = is_steep(&image, &CAM, &-Vector3::y(), u, v);
-                assert_eq!(one, push.moved()[v * 640 + u] == 1, "({u}, {v})");
+                assert_eq!(one, moved[v * 640 + u] == 1, "({u}, {v})");
                 agree += usize::from(one);
             }
         }
