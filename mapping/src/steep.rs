@@ -13,11 +13,14 @@
 //! the face, where the obstacle's cells are, and leaves the floor before it to the floor's
 //! points. Its height changes by the ray's slope times that distance only. Nothing else
 //! moves: floors, ramps, box tops, pixels at a depth jump (where the slope is not the
-//! surface's) and pixels near the border or without a return.
+//! surface's) and pixels without a return.
 //!
 //! The surface's slope comes from the 3-D points [`RADIUS_PX`] pixels to either side of the
 //! pixel, along the row and along the column (the cross product of the two differences),
-//! against the world's up direction seen in the camera frame.
+//! against the world's up direction seen in the camera frame. Within [`RADIUS_PX`] of the
+//! image's border the pixel itself stands in for the missing side. The border matters: a
+//! wall's highest points are in the image's top rows, and unmoved they would lift the
+//! floor's cells before it to the wall's height.
 
 use crate::input::HeightModel;
 use nalgebra::Vector3;
@@ -93,14 +96,13 @@ impl SteepPush {
         let src = depth.as_slice();
         self.moved.clear();
         self.moved.resize(src.len(), 0);
-        let consts = Consts {
-            r: RADIUS_PX,
-            cos2: STEEP_DEG.to_radians().cos().powi(2),
-            up: f.up_camera.cast::<f32>().into(),
-            inv_f: [1.0 / f.camera.fx() as f32, 1.0 / f.camera.fy() as f32],
-            c: [f.camera.cx() as f32, f.camera.cy() as f32],
-            sigmas: f.sigmas,
-        };
+        let consts = Consts::new(f.camera, &f.up_camera, f.sigmas);
+        let r = consts.r;
+        if w <= r || h <= r {
+            // Too small for a slope: nothing moves.
+            out.as_mut_slice().copy_from_slice(src);
+            return (out, 0);
+        }
         let pushed = out
             .as_mut_slice()
             .par_chunks_mut(w.max(1))
@@ -108,28 +110,26 @@ impl SteepPush {
             .enumerate()
             .map(|(v, (dst, moved))| {
                 let at = |y: usize| src.get(y * w..(y + 1) * w).unwrap_or(&[]);
-                let row = at(v);
-                let r = consts.r;
-                let copy = |dst: &mut [f32], from: usize| {
-                    for (o, &i) in dst.iter_mut().zip(row.get(from..).unwrap_or(&[])) {
-                        *o = i;
-                    }
-                };
-                if v < r || v + r >= h || w <= 2 * r {
-                    copy(dst, 0);
-                    return 0;
-                }
-                // The row pass writes pixels r..w - r; the border keeps the input.
-                copy(dst.get_mut(..r).unwrap_or(&mut []), 0);
-                copy(dst.get_mut(w - r..).unwrap_or(&mut []), w - r);
+                // The rows r above and below, or the pixel's own at the border.
+                let (va, vb) = (v.saturating_sub(r), (v + r).min(h - 1));
+                let ys = [va, v, vb].map(|y| (y as f32 - consts.c[1]) * consts.inv_f[1]);
+                // The row pass does pixels r..w - r, the scalar test the columns beside.
                 crate::simd::dispatch(PushRow {
-                    rows: [row, at(v - r), at(v + r)],
-                    v,
-                    dst,
-                    moved,
+                    rows: [at(v), at(va), at(vb)],
+                    ys,
+                    dst: &mut *dst,
+                    moved: &mut *moved,
                     k: &consts,
                     model: f.model,
                 });
+                for u in (0..r.min(w)).chain(w.saturating_sub(r).max(r)..w) {
+                    let d = src.get(v * w + u).copied().unwrap_or(0.0);
+                    let steep = steep_pixel(src, w, h, u, v, &consts);
+                    if let (Some(o), Some(m)) = (dst.get_mut(u), moved.get_mut(u)) {
+                        *o = if steep { consts.pushed(d, f.model) } else { d };
+                        *m = u8::from(steep);
+                    }
+                }
                 moved.iter().map(|&m| usize::from(m)).sum::<usize>()
             })
             .sum();
@@ -142,23 +142,25 @@ impl SteepPush {
     }
 }
 
-/// Whether a pixel lies on a steep face: `d` = [its depth, the depths `r` pixels to its
-/// left, right, above and below] (m), `xy` = [its normalised x, y, the y of the rows above
-/// and below, the x offset of `r` pixels], `up` the world's up in the camera frame and
-/// `cos2` the squared cosine of [`STEEP_DEG`]. False when a depth is missing or a
-/// neighbour lies beyond [`JUMP_REL`]. Free of branches (it runs in vectorised loops).
+/// Whether a pixel lies on a steep face: `d` = [its depth, the depths of its neighbours
+/// left, right, above and below] (m), `xs` = the normalised x of [the left neighbour, the
+/// pixel, the right neighbour], `ys` = the normalised y of [the row above, the pixel's,
+/// the row below], `up` the world's up in the camera frame and `cos2` the squared cosine of
+/// [`STEEP_DEG`]. False when a depth is missing or a neighbour lies beyond [`JUMP_REL`].
+/// Free of branches (it runs in vectorised loops).
 #[inline(always)]
 fn steep_at(
     [d, dl, dr, da, db]: [f32; 5],
-    [x, y, y_up, y_down, dx]: [f32; 5],
+    [xl, x, xr]: [f32; 3],
+    [ya, y, yb]: [f32; 3],
     [ux, uy, uz]: [f32; 3],
     cos2: f32,
 ) -> bool {
     let near = |q: f32| (q > 0.0) & ((q - d).abs() <= JUMP_REL * d);
     let ok = (d > 0.0) & (d < f32::INFINITY) & near(dl) & near(dr) & near(da) & near(db);
     // The 3-D differences across the pixel along the row and along the column.
-    let a = [(x + dx) * dr - (x - dx) * dl, y * (dr - dl), dr - dl];
-    let b = [x * (db - da), y_down * db - y_up * da, db - da];
+    let a = [xr * dr - xl * dl, y * (dr - dl), dr - dl];
+    let b = [x * (db - da), yb * db - ya * da, db - da];
     let nrm = [
         a[1] * b[2] - a[2] * b[1],
         a[2] * b[0] - a[0] * b[2],
@@ -170,9 +172,9 @@ fn steep_at(
 }
 
 /// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`], seen by
-/// `camera` whose frame has the world's up along `up_camera`; false near the border, where
-/// a depth is missing or across a depth jump. The test [`SteepPush`] moves pixels by, one
-/// pixel at a time (for sampled pixels, as the view alignment takes them).
+/// `camera` whose frame has the world's up along `up_camera`; false where a depth is
+/// missing or across a depth jump. The test [`SteepPush`] moves pixels by, one pixel at a
+/// time (for sampled pixels, as the view alignment takes them).
 pub(crate) fn is_steep(
     depth: &DepthImage,
     camera: &PinholeCamera,
@@ -180,30 +182,30 @@ pub(crate) fn is_steep(
     u: usize,
     v: usize,
 ) -> bool {
-    let r = RADIUS_PX;
     let (w, h) = (depth.width() as usize, depth.height() as usize);
-    if u < r || v < r || u + r >= w || v + r >= h {
+    let k = Consts::new(camera, up_camera, 0.0);
+    steep_pixel(depth.as_slice(), w, h, u, v, &k)
+}
+
+/// [`steep_at`] for pixel `(u, v)` of the row-major `w` x `h` depths `src` (m), its
+/// neighbours [`RADIUS_PX`] away or, at the border, the pixel itself on the missing side.
+/// False outside the image or when it is too small for a slope.
+fn steep_pixel(src: &[f32], w: usize, h: usize, u: usize, v: usize, k: &Consts) -> bool {
+    let r = k.r;
+    if u >= w || v >= h || w <= r || h <= r {
         return false;
     }
-    let at = |u: usize, v: usize| depth.as_slice().get(v * w + u).copied().unwrap_or(0.0);
-    let (ifx, ify) = (1.0 / camera.fx() as f32, 1.0 / camera.fy() as f32);
-    let (x, y) = (
-        (u as f32 - camera.cx() as f32) * ifx,
-        (v as f32 - camera.cy() as f32) * ify,
-    );
-    let rf = r as f32;
-    let up = up_camera.cast::<f32>();
+    let at = |u: usize, v: usize| src.get(v * w + u).copied().unwrap_or(0.0);
+    let (ul, ur) = (u.saturating_sub(r), (u + r).min(w - 1));
+    let (va, vb) = (v.saturating_sub(r), (v + r).min(h - 1));
+    let [ifx, ify] = k.inv_f;
+    let [cx, cy] = k.c;
     steep_at(
-        [
-            at(u, v),
-            at(u - r, v),
-            at(u + r, v),
-            at(u, v - r),
-            at(u, v + r),
-        ],
-        [x, y, y - rf * ify, y + rf * ify, rf * ifx],
-        [up.x, up.y, up.z],
-        STEEP_DEG.to_radians().cos().powi(2),
+        [at(u, v), at(ul, v), at(ur, v), at(u, va), at(u, vb)],
+        [ul, u, ur].map(|x| (x as f32 - cx) * ifx),
+        [va, v, vb].map(|y| (y as f32 - cy) * ify),
+        k.up,
+        k.cos2,
     )
 }
 
@@ -222,13 +224,32 @@ struct Consts {
     sigmas: f32,
 }
 
-/// One row `v` of [`SteepPush::push`], run by [`crate::simd::dispatch`] in the copy for
-/// this CPU's instruction set (the same results): `rows` are the depths of rows `v`,
-/// `v - r` and `v + r` (m); `dst` takes the depths of pixels `r..w - r`, moved or not, and
-/// `moved` a 1 for each pixel moved.
+impl Consts {
+    fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>, sigmas: f32) -> Self {
+        Self {
+            r: RADIUS_PX,
+            cos2: STEEP_DEG.to_radians().cos().powi(2),
+            up: up_camera.cast::<f32>().into(),
+            inv_f: [1.0 / camera.fx() as f32, 1.0 / camera.fy() as f32],
+            c: [camera.cx() as f32, camera.cy() as f32],
+            sigmas,
+        }
+    }
+
+    /// Depth `d` (m) moved `sigmas` `sigma_d` farther.
+    #[inline(always)]
+    fn pushed<M: HeightModel + ?Sized>(&self, d: f32, model: &M) -> f32 {
+        d + self.sigmas * model.depth_sigma_f32(d)
+    }
+}
+
+/// One row of [`SteepPush::push`], run by [`crate::simd::dispatch`] in the copy for this
+/// CPU's instruction set (the same results): `rows` are the depths of the row, of the row
+/// above and of the row below (m), `ys` their normalised y; `dst` takes the depths of
+/// pixels `r..w - r`, moved or not, and `moved` a 1 for each pixel moved.
 struct PushRow<'a, M: ?Sized> {
     rows: [&'a [f32]; 3],
-    v: usize,
+    ys: [f32; 3],
     dst: &'a mut [f32],
     moved: &'a mut [u8],
     k: &'a Consts,
@@ -242,7 +263,7 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
     fn with_simd<S: pulp::Simd>(self, _: S) {
         let Self {
             rows: [row, above, below],
-            v,
+            ys: [y_up, y, y_down],
             dst,
             moved,
             k,
@@ -267,24 +288,20 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
         let (Some(dst), Some(moved)) = (dst.get_mut(r..r + n), moved.get_mut(r..r + n)) else {
             return;
         };
-        let [ifx, ify] = k.inv_f;
-        let [cx, cy] = k.c;
-        let [ux, uy, uz] = k.up;
-        let rf = r as f32;
-        // Normalised coordinates of rows v, v - r, v + r and the column offset of r pixels.
-        let y = (v as f32 - cy) * ify;
-        let (y_up, y_down) = (y - rf * ify, y + rf * ify);
-        let dx = rf * ifx;
+        let [ifx, _] = k.inv_f;
+        let [cx, _] = k.c;
+        let dx = r as f32 * ifx;
         for i in 0..n {
             let d = c[i];
             let x = ((i + r) as f32 - cx) * ifx;
             let steep = steep_at(
                 [d, left[i], right[i], up_d[i], down_d[i]],
-                [x, y, y_up, y_down, dx],
-                [ux, uy, uz],
+                [x - dx, x, x + dx],
+                [y_up, y, y_down],
+                k.up,
                 k.cos2,
             );
-            let pushed = d + k.sigmas * model.depth_sigma_f32(d);
+            let pushed = k.pushed(d, model);
             dst[i] = if steep { pushed } else { d };
             moved[i] = u8::from(steep);
         }
@@ -328,12 +345,13 @@ mod tests {
     fn a_wall_seen_head_on_moves_back_by_its_noise() {
         let (before, after, n, _) = pushed(|_, _| 2.0);
         let sigma = PrimeSenseHeight::default().depth_sigma_f32(2.0);
-        let r = RADIUS_PX;
-        // Every pixel whose four neighbours exist moves; the border stays.
-        assert_eq!(n, (640 - 2 * r) * (480 - 2 * r));
-        assert!((at(&after, 320, 240) - (2.0 + 2.0 * sigma)).abs() < 1e-6);
-        assert_eq!(at(&after, 0, 240), at(&before, 0, 240));
-        assert_eq!(at(&after, 320, r - 1), 2.0);
+        // Every pixel moves, the border too (its own depth stands in for the missing side):
+        // a wall's top rows are its highest points.
+        assert_eq!(n, 640 * 480);
+        for (u, v) in [(320, 240), (0, 240), (320, 0), (639, 479)] {
+            let moved = at(&after, u, v) - at(&before, u, v);
+            assert!((moved - 2.0 * sigma).abs() < 1e-6, "({u}, {v}): {moved}");
+        }
     }
 
     #[test]
@@ -382,8 +400,9 @@ mod tests {
         assert!(at(&after, 100, 240 - 1) > 2.0);
         assert!(at(&after, 100, 100) > 2.0);
         assert!(at(&after, 500, 100) > 3.0);
-        let rows = 480 - 2 * r - 3;
-        assert_eq!(n, (640 - 2 * r - 2 * r) * rows);
+        // Rows r above and below the hole see it as a neighbour; the border moves.
+        assert!(at(&after, 0, 0) > 2.0 && at(&after, 639, 479) > 3.0);
+        assert_eq!(n, (640 - 2 * r) * (480 - 3));
     }
 
     #[test]
