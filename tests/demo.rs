@@ -28,11 +28,11 @@ fn demo_renders_tracks_maps_and_reports() {
     assert_eq!(r["slam"]["frames_tracked"], 30, "{r}");
     assert!(num(&r["slam"], "ate_rmse_m") < 0.01, "{r}");
     // The pipeline's map (SLAM poses) against the same views at ground-truth poses, at the
-    // same coverage. On the whole lap the SLAM costs the map 6 % of its error (the issue's
-    // bound is 10 %; .ci/run checks it on the full demo); on this 3 s prefix, before any
-    // loop closes, 27 % (8.3 against 6.5 mm, measured; 16 % before the stack map smoothed
-    // its depth, which cut the map's own error 2-3x and so exposed the SLAM's attitude
-    // error of 0.1-0.2 degree), hence the wider bound here.
+    // same coverage. On the whole lap the SLAM costs the map 18 % of its error (9.4 against
+    // 8.0 mm, the SLAM's attitude drifting by up to 0.23 degree; .ci/run checks it on the
+    // full demo); on this 3 s prefix, before any loop closes, 9 % (6.95 against 6.37 mm,
+    // measured 2026-11-28 with the image's border moved by the steep push; 1 % before it,
+    // 27 % before the steep push), hence the wider bound here.
     let (slam, gt) = (
         &r["map"]["slam_poses"],
         &r["map"]["groundtruth_poses_views"],
@@ -41,10 +41,10 @@ fn demo_renders_tracks_maps_and_reports() {
     assert!(num(slam, "coverage") > 0.95 * num(gt, "coverage"), "{r}");
     assert_eq!(slam["phantoms"], 0, "{r}");
     // Both maps are also scored near and away from steps and obstacles' feet, where the
-    // error differs in kind. Measured on this prefix since steep faces' points are moved
-    // behind the faces (2026-11-28): near 16.6 / 16.2 mm, away 3.8 / 3.9 mm, all cells 7.3 /
-    // 7.2 mm for the SLAM's map / ground truth's (before: away 1.1 / 0.8 mm against 8.4 /
-    // 6.3 mm over all cells, and the bound on away was half of all cells).
+    // error differs in kind. Measured on this prefix with the border moved too
+    // (2026-11-28): near 16.3 / 14.7 mm, away 3.3 / 3.2 mm, all cells 7.0 / 6.4 mm for the
+    // SLAM's map / ground truth's (before steep faces' points were moved: away 1.1 / 0.8 mm
+    // against 8.4 / 6.3 mm over all cells, and the bound on away was half of all cells).
     for m in [slam, gt] {
         let away = num(m, "rmse_away_from_steps_m");
         assert!(
