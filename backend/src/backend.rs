@@ -14,7 +14,7 @@ use crate::error::BackendError;
 use crate::map::PointId;
 use crate::map::{Feature, Keyframe, KeyframeId, Map, OdometryEdge};
 use crate::se3::{is_finite, left_from_right};
-use crate::window::{build, final_free, local_window, KeyframeEdge, MapProblem};
+use crate::window::{build, final_free, local_window, EdgeKind, KeyframeEdge, MapProblem};
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Instant;
@@ -178,7 +178,7 @@ impl Backend {
         // A right perturbation of the keyframe's pose does not depend on the frame the
         // link starts from: the link's tangent information holds after composing.
         self.add_measured_edge(
-            (previous, id, false),
+            (previous, id, EdgeKind::Odometry),
             live_from_previous * l.previous_from_this,
             &l.previous_from_this,
             &l.information,
@@ -187,11 +187,11 @@ impl Backend {
 
     /// Adds the pose-pose edge `from -> to` with relative pose `from_from_to`, measured
     /// (by a depth alignment) as `measured` with information `info_left` (left
-    /// perturbation, as the alignment gives it), `revisit` for a revisit link;
-    /// whether that information was usable.
+    /// perturbation, as the alignment gives it), of `kind`; whether that information was
+    /// usable.
     pub(crate) fn add_measured_edge(
         &mut self,
-        (from, to, revisit): (KeyframeId, KeyframeId, bool),
+        (from, to, kind): (KeyframeId, KeyframeId, EdgeKind),
         from_from_to: Isometry3<f64>,
         measured: &Isometry3<f64>,
         info_left: &Matrix6<f64>,
@@ -204,7 +204,7 @@ impl Backend {
                 to,
                 from_from_to,
                 information,
-                revisit,
+                kind,
             });
         }
         usable

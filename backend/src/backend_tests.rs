@@ -410,13 +410,16 @@ fn the_final_optimization_frees_the_newest_window_unless_links_tie_keyframes() {
         to: last,
         from_from_to: Isometry3::identity(),
         information: nalgebra::Matrix6::identity(),
-        revisit: false,
+        kind: crate::window::EdgeKind::Odometry,
     });
     let free = crate::window::final_free(&backend.map, &backend.pose_edges, &backend.config);
     assert_eq!(free, all[3..].to_vec());
     // The same link as a revisit link reaches back only over the newest
     // `final_revisit_link_keyframes`.
-    backend.pose_edges.iter_mut().for_each(|e| e.revisit = true);
+    backend
+        .pose_edges
+        .iter_mut()
+        .for_each(|e| e.kind = crate::window::EdgeKind::Revisit);
     backend.config.final_revisit_link_keyframes = 5;
     let free = crate::window::final_free(&backend.map, &backend.pose_edges, &backend.config);
     assert_eq!(free, all[all.len() - 5..].to_vec());

@@ -268,7 +268,7 @@ impl Backend {
         // optimization spreads it over the whole span (not `revisit`: capped, the demo's lap
         // lost 0.71 -> 0.84 mm).
         self.add_measured_edge(
-            (verified.matched, id, false),
+            (verified.matched, id, crate::window::EdgeKind::Loop),
             verified.matched_from_new,
             &verified.matched_from_new,
             &verified.information_left,

@@ -61,7 +61,7 @@ impl Backend {
                 to: id,
                 from_from_to: e.ref_from_cur,
                 information: (info + info.transpose()) * 0.5,
-                revisit: false,
+                kind: crate::window::EdgeKind::Covisible,
             });
         }
         self.pose_edges.extend(edges);

@@ -208,7 +208,7 @@ impl Backend {
                 match checked {
                     Ok(a) => {
                         added = self.add_measured_edge(
-                            (old, id, true),
+                            (old, id, crate::window::EdgeKind::Revisit),
                             a.world_from_cur,
                             &a.world_from_cur,
                             &a.information,

@@ -25,9 +25,23 @@ pub(crate) struct KeyframeEdge {
     pub(crate) to: KeyframeId,
     pub(crate) from_from_to: nalgebra::Isometry3<f64>,
     pub(crate) information: Matrix6<f64>,
-    /// A revisit link (to a keyframe of an earlier pass), whose reach the final
-    /// optimization caps; not a loop closure, an odometry or a weak keyframe's depth link.
-    pub(crate) revisit: bool,
+    /// What measured it: the final optimization caps the reach of revisit links.
+    pub(crate) kind: EdgeKind,
+}
+
+/// Where a pose-pose edge comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum EdgeKind {
+    /// The odometry's relative pose, or a weak keyframe's depth link to the previous one.
+    Odometry,
+    /// The relative pose of two covisible keyframes from the points they share (the
+    /// pose-graph back end).
+    Covisible,
+    /// A verified loop closure: the final optimization spreads it over the whole span.
+    Loop,
+    /// A revisit link to a keyframe of an earlier pass (`[backend.revisit]`): the final
+    /// optimization frees only the newest `final_revisit_link_keyframes` for it.
+    Revisit,
 }
 
 /// The free keyframes of a local optimization around `newest`: itself and the keyframes
@@ -84,7 +98,7 @@ pub(crate) fn final_free(
         .iter()
         .map(|e| {
             let oldest = e.from.min(e.to);
-            if e.revisit {
+            if e.kind == EdgeKind::Revisit {
                 oldest.max(revisit_from)
             } else {
                 oldest
@@ -173,7 +187,7 @@ pub(crate) fn build(
                 to: k,
                 from_from_to: e.previous_from_this,
                 information: e.information,
-                revisit: false,
+                kind: EdgeKind::Odometry,
             });
         }
     }
