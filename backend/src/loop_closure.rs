@@ -265,8 +265,8 @@ impl Backend {
         let step = before.inverse() * verified.world_from_new;
         // The loop stays as an edge, and the keyframe's features are matched again against
         // the map around its corrected pose: the points mapped twice are fused. The final
-        // optimization spreads it over the whole span (not `revisit`: capped, the demo's lap
-        // lost 0.71 -> 0.84 mm).
+        // optimization spreads it over the whole span (not `EdgeKind::Revisit`: capped, the
+        // demo's lap lost 0.71 -> 0.84 mm).
         self.add_measured_edge(
             (verified.matched, id, crate::window::EdgeKind::Loop),
             verified.matched_from_new,

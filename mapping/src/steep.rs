@@ -225,6 +225,8 @@ struct Consts {
 }
 
 impl Consts {
+    /// The constants for `camera`, the world's up `up_camera` in its frame and a push of
+    /// `sigmas` `sigma_d`.
     fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>, sigmas: f32) -> Self {
         Self {
             r: RADIUS_PX,
