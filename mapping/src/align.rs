@@ -252,7 +252,8 @@ fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> 
             // A steep face's pixels are left out: the map holds them behind the face
             // (`crate::steep`), the view as measured, and neither is the height of the
             // cell they land in.
-            let push = mapper.config().steep_push_sigmas > 0.0;
+            let steep = (mapper.config().steep_push_sigmas > 0.0)
+                .then(|| crate::steep::SteepTest::new(camera, &r3));
             for v in (0..depth_m.height()).step_by(stride) {
                 rays.row(v as usize, depth_m.width() as usize, &mut row);
                 for u in (0..depth_m.width()).step_by(stride) {
@@ -263,8 +264,9 @@ fn samples(mapper: &StackMapper, frame: &SensorFrame<'_>, cfg: &AlignConfig) -> 
                         continue;
                     };
                     if !(d >= lo && d <= hi)
-                        || (push
-                            && crate::steep::is_steep(depth_m, camera, &r3, u as usize, v as usize))
+                        || steep
+                            .as_ref()
+                            .is_some_and(|t| t.at(depth_m, u as usize, v as usize))
                     {
                         continue;
                     }

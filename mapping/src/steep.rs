@@ -171,20 +171,23 @@ fn steep_at(
     ok & (up_n * up_n < cos2 * nn)
 }
 
-/// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`], seen by
-/// `camera` whose frame has the world's up along `up_camera`; false where a depth is
-/// missing or across a depth jump. The test [`SteepPush`] moves pixels by, one pixel at a
-/// time (for sampled pixels, as the view alignment takes them).
-pub(crate) fn is_steep(
-    depth: &DepthImage,
-    camera: &PinholeCamera,
-    up_camera: &Vector3<f64>,
-    u: usize,
-    v: usize,
-) -> bool {
-    let (w, h) = (depth.width() as usize, depth.height() as usize);
-    let k = Consts::new(camera, up_camera, 0.0);
-    steep_pixel(depth.as_slice(), w, h, u, v, &k)
+/// The test [`SteepPush`] moves pixels by, one pixel at a time (for sampled pixels, as the
+/// view alignment takes them), with a view's constants computed once.
+pub(crate) struct SteepTest(Consts);
+
+impl SteepTest {
+    /// The test for a view seen by `camera` whose frame has the world's up along
+    /// `up_camera`.
+    pub(crate) fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>) -> Self {
+        Self(Consts::new(camera, up_camera, 0.0))
+    }
+
+    /// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`];
+    /// false where a depth is missing or across a depth jump.
+    pub(crate) fn at(&self, depth: &DepthImage, u: usize, v: usize) -> bool {
+        let (w, h) = (depth.width() as usize, depth.height() as usize);
+        steep_pixel(depth.as_slice(), w, h, u, v, &self.0)
+    }
 }
 
 /// [`steep_at`] for pixel `(u, v)` of the row-major `w` x `h` depths `src` (m), its
@@ -419,10 +422,11 @@ mod tests {
             }
         };
         let (image, _, n, moved) = pushed(depth);
+        let test = SteepTest::new(&CAM, &-Vector3::y());
         let mut agree = 0;
         for v in (0..480).step_by(7) {
             for u in (0..640).step_by(7) {
-                let one = is_steep(&image, &CAM, &-Vector3::y(), u, v);
+                let one = test.at(&image, u, v);
                 assert_eq!(one, moved[v * 640 + u] == 1, "({u}, {v})");
                 agree += usize::from(one);
             }
