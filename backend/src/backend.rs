@@ -450,7 +450,8 @@ impl Backend {
                 .filter_map(|f| Some((f.track_id, f.point?)))
                 .collect()
         });
-        report.culled_keyframes = self.cull_keyframes(&window) + self.cull_to_budget();
+        report.culled_keyframes =
+            self.cull_keyframes(&window) + self.cull_revisit(id) + self.cull_to_budget();
         report.culled_points = self.cull_points(id);
         // A keyframe that has left the window (and whose new points have had their grace
         // period) keeps only the features that observe a point.

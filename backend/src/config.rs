@@ -109,6 +109,14 @@ pub struct BackendConfig {
     /// so that walking over the same place for hours does not grow the map. Must exceed
     /// `final_max_keyframes`: the older keyframes it keeps anchor the final optimization.
     pub max_keyframes: usize,
+    /// A keyframe is culled once it has settled (`window_keyframes + point_grace_keyframes`
+    /// keyframes later) when an older keyframe stands within this distance of it (m): a
+    /// later pass over a place keeps the keyframes of the first instead of adding its own
+    /// (docs/slam.md, "Revisits keep the map flat"). 0: never. Bundle-adjustment mode only.
+    pub revisit_cull_radius_m: f64,
+    /// ... looking within this angle of it (degrees), and at least `revisit.min_keyframe_gap`
+    /// keyframes older (an earlier pass, as for the revisit links).
+    pub revisit_cull_angle_deg: f64,
 }
 
 impl Default for BackendConfig {
@@ -139,6 +147,8 @@ impl Default for BackendConfig {
             final_max_keyframes: 300,
             final_revisit_link_keyframes: 30,
             max_keyframes: 400,
+            revisit_cull_radius_m: 0.1,
+            revisit_cull_angle_deg: 15.0,
         }
     }
 }
@@ -224,6 +234,20 @@ impl BackendConfig {
                     self.max_keyframes, self.final_max_keyframes
                 ),
                 "> final_max_keyframes",
+            );
+        }
+        if !(self.revisit_cull_radius_m >= 0.0 && self.revisit_cull_radius_m.is_finite()) {
+            return bad(
+                "revisit_cull_radius_m",
+                self.revisit_cull_radius_m.to_string(),
+                ">= 0 (0: never)",
+            );
+        }
+        if !(self.revisit_cull_angle_deg >= 0.0 && self.revisit_cull_angle_deg <= 180.0) {
+            return bad(
+                "revisit_cull_angle_deg",
+                self.revisit_cull_angle_deg.to_string(),
+                "in [0, 180]",
             );
         }
         let m = &self.matching;

@@ -50,6 +50,47 @@ impl Backend {
         removed
     }
 
+    /// Culls the keyframe that has just settled (`window_keyframes + point_grace_keyframes`
+    /// before `newest`: the local optimizations are done with it and its new points have had
+    /// their grace) when it stands where an older keyframe of the same piece already stands:
+    /// one at least `revisit.min_keyframe_gap` keyframes older (an earlier pass), within
+    /// `revisit_cull_radius_m` and `revisit_cull_angle_deg` of it. Its pose is kept relative
+    /// to that keyframe, as the local optimizations left the two (tied by the old points it
+    /// re-observed), and its frames follow; so passing the same place again does not grow
+    /// the map. Kept relative to its neighbour in time instead, a later pass's keyframes
+    /// culled one after another would hang in a chain from the last one kept, and every
+    /// correction of that one would swing the whole chain (docs/slam.md, "Revisits keep the
+    /// map flat"). Returns how many were removed (0 or 1). Bundle-adjustment mode only: the
+    /// pose graph, whose edges join covisible keyframes, lost accuracy without the later
+    /// passes' keyframes.
+    pub(crate) fn cull_revisit(&mut self, newest: KeyframeId) -> usize {
+        let cfg = &self.config;
+        if cfg.mode == crate::config::BackendMode::PoseGraph {
+            return 0;
+        }
+        let settled = cfg.window_keyframes as u64 + cfg.point_grace_keyframes;
+        let Some(k) = newest.checked_sub(settled) else {
+            return 0;
+        };
+        if cfg.revisit_cull_radius_m <= 0.0 || Some(k) == self.first {
+            return 0;
+        }
+        let gap = cfg.revisit.min_keyframe_gap;
+        // Not across the start of a piece placed by a guess: the two may still be moved
+        // apart when the pieces join.
+        let starts = &self.piece_starts;
+        let older = self.map.nearby(
+            k,
+            cfg.revisit_cull_radius_m,
+            cfg.revisit_cull_angle_deg,
+            1,
+            |o| o.id.saturating_add(gap) < k && starts.range(o.id + 1..=k).next().is_none(),
+        );
+        older
+            .first()
+            .map_or(0, |&o| usize::from(self.remove_keyframe(k, o)))
+    }
+
     /// Keeps the map within `max_keyframes`: culls the most redundant keyframes older than
     /// the final optimization's span (the oldest first among equally redundant ones) until
     /// it fits. The final optimization would hold them fixed anyway, so each keeps its pose
@@ -145,3 +186,7 @@ impl Backend {
         true
     }
 }
+
+#[cfg(test)]
+#[path = "culling_tests.rs"]
+mod tests;
