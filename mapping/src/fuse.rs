@@ -9,14 +9,25 @@ use crate::column::{Accs, Cell, Spilled, Stack};
 use crate::polar::Polar;
 use crate::stack::StackConfig;
 
-/// What one band's fusion did.
-pub(crate) struct BandUpdate {
-    /// Measurements fused.
-    pub(crate) used: usize,
-    /// Measurements dropped because their column had too many distinct voxels this frame.
-    pub(crate) overflow: usize,
+/// What one band's fusion did: measurements fused, and measurements dropped because their
+/// column had too many distinct voxels this frame.
+pub(crate) type BandUpdate = (usize, usize);
+
+/// One band's buffers, kept from frame to frame so that a frame allocates nothing.
+#[derive(Debug, Default)]
+pub(crate) struct BandScratch {
+    /// Columns touched this frame (storage indices).
+    touched: Vec<u32>,
     /// Updated, established cells for the visibility check.
     pub(crate) targets: Vec<Target>,
+}
+
+impl BandScratch {
+    /// Bytes held.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        self.touched.capacity() * std::mem::size_of::<u32>()
+            + self.targets.capacity() * std::mem::size_of::<Target>()
+    }
 }
 
 /// The frame's constants of the fusion.
@@ -42,10 +53,12 @@ pub(crate) struct Band<'b> {
     pub(crate) spill: &'b mut Vec<Spilled>,
     /// Columns of this band not yet established, whose vitality may decay.
     pub(crate) pending: &'b mut Vec<u32>,
+    pub(crate) scratch: &'b mut BandScratch,
 }
 
 impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
-    /// Fuses this frame's measurements into one band.
+    /// Fuses this frame's measurements into one band; its visibility targets are left in
+    /// `band.scratch.targets`.
     pub(crate) fn band(&self, band: Band<'_>) -> BandUpdate {
         let Band {
             index,
@@ -55,20 +68,28 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             accs,
             spill,
             pending,
+            scratch,
         } = band;
         spill.clear();
-        let (used, overflow, touched) = self.accumulate(index, first, cells, accs, spill);
-        let targets = self.apply(first, &touched, cells, stacks, (accs, spill), pending);
-        self.decay(first, cells, pending);
-        BandUpdate {
-            used,
-            overflow,
+        scratch.touched.clear();
+        scratch.targets.clear();
+        let BandScratch { touched, targets } = scratch;
+        let counts = self.accumulate(index, first, cells, accs, spill, touched);
+        self.apply(
+            first,
+            touched,
+            cells,
+            stacks,
+            (accs, spill),
+            pending,
             targets,
-        }
+        );
+        self.decay(first, cells, pending);
+        counts
     }
 
-    /// Accumulates the band's measurements per (column, voxel); returns the counts of used
-    /// and overflowing measurements and the columns touched.
+    /// Accumulates the band's measurements per (column, voxel), appending the columns
+    /// touched to `touched`; returns the counts of used and overflowing measurements.
     fn accumulate(
         &self,
         index: usize,
@@ -76,10 +97,11 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
         cells: &mut [Cell],
         accs: &mut [Accs],
         spill: &mut Vec<Spilled>,
-    ) -> (usize, usize, Vec<u32>) {
+        touched: &mut Vec<u32>,
+    ) -> (usize, usize) {
         let voxel_h = self.cfg.voxel_height_m as f32;
         let inv_voxel_h = 1.0 / voxel_h;
-        let (mut used, mut overflow, mut touched) = (0, 0, Vec::new());
+        let (mut used, mut overflow) = (0, 0);
         for p in self.binned.band(index) {
             let k = (p.cell() as usize).wrapping_sub(first);
             let (Some(cell), Some(acc)) = (cells.get_mut(k), accs.get_mut(k)) else {
@@ -103,12 +125,13 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
                 overflow += 1;
             }
         }
-        (used, overflow, touched)
+        (used, overflow)
     }
 
     /// Applies the accumulated voxels to the touched columns; new columns join `pending`.
-    /// Returns the visibility targets: established cells updated now, at least two cells
-    /// from the sensor.
+    /// Appends the visibility targets to `targets`: established cells updated now, at least
+    /// two cells from the sensor.
+    #[allow(clippy::too_many_arguments)]
     fn apply(
         &self,
         first: usize,
@@ -117,10 +140,10 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
         stacks: &mut [Stack],
         (accs, spill): (&[Accs], &[Spilled]),
         pending: &mut Vec<u32>,
-    ) -> Vec<Target> {
+        targets: &mut Vec<Target>,
+    ) {
         let cfg = self.cfg;
         let min_d = 2.0 * cfg.resolution_m;
-        let mut targets = Vec::new();
         for &ci in touched {
             let k = (ci as usize).wrapping_sub(first);
             let (Some(c), Some(st), Some(acc)) = (cells.get_mut(k), stacks.get_mut(k), accs.get(k))
@@ -149,7 +172,6 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
                 });
             }
         }
-        targets
     }
 
     /// Vitality decays in pending columns not updated now, until they are established; a

@@ -39,7 +39,7 @@ use crate::checks::{LosTable, SeeThrough, Target};
 use crate::column::{Accs, Cell, Spilled, Stack, Voxel};
 use crate::denoise::Smoother;
 use crate::error::MappingError;
-use crate::fuse::{Band, BandUpdate, Fusion};
+use crate::fuse::{Band, BandScratch, BandUpdate, Fusion};
 use crate::input::{
     prepare_binned, Binned, Binning, Cloud, PrimeSenseHeight, RayCache, SensorFrame,
 };
@@ -68,6 +68,10 @@ pub struct StackMapper {
     binned: Binned,
     /// Per band: columns not yet established whose vitality may decay.
     pending: Vec<Vec<u32>>,
+    /// Per band: the fusion's buffers.
+    scratch: Vec<BandScratch>,
+    /// The visibility check's targets of all bands (a buffer kept from frame to frame).
+    targets: Vec<Target>,
     band_cells: usize,
     /// Scratch table of the visibility check (lowest line-of-sight slope per azimuth bin
     /// and distance).
@@ -99,6 +103,8 @@ impl StackMapper {
             rays: RayCache::default(),
             binned: Binned::default(),
             pending: vec![Vec::new(); BANDS],
+            scratch: (0..BANDS).map(|_| BandScratch::default()).collect(),
+            targets: Vec::new(),
             band_cells,
             los_table: Vec::new(),
             smoother: Smoother::default(),
@@ -358,6 +364,12 @@ impl ElevationMapper for StackMapper {
             + self.los_table.capacity() * std::mem::size_of::<f32>()
             + self.smoother.memory_bytes()
             + self.pusher.memory_bytes()
+            + self
+                .scratch
+                .iter()
+                .map(BandScratch::memory_bytes)
+                .sum::<usize>()
+            + self.targets.capacity() * std::mem::size_of::<Target>()
     }
 
     fn integrate(&mut self, frame: &SensorFrame<'_>) -> UpdateStats {
@@ -425,7 +437,7 @@ impl ElevationMapper for StackMapper {
             polar,
             sensor_z_m: sz,
         };
-        let bands: Vec<BandUpdate> = self
+        let (used, overflow): BandUpdate = self
             .window
             .cells_mut()
             .par_chunks_mut(band_cells)
@@ -433,22 +445,29 @@ impl ElevationMapper for StackMapper {
             .zip(self.accs.par_chunks_mut(band_cells))
             .zip(self.spill.par_iter_mut())
             .zip(self.pending.par_iter_mut())
+            .zip(self.scratch.par_iter_mut())
             .enumerate()
-            .map(|(index, ((((cells, stacks), accs), spill), pending))| {
-                fusion.band(Band {
-                    index,
-                    first: index * band_cells,
-                    cells,
-                    stacks,
-                    accs,
-                    spill,
-                    pending,
-                })
-            })
-            .collect();
-        let used = bands.iter().map(|b| b.used).sum();
-        let overflow = bands.iter().map(|b| b.overflow).sum();
-        let targets: Vec<Target> = bands.into_iter().flat_map(|b| b.targets).collect();
+            .map(
+                |(index, (((((cells, stacks), accs), spill), pending), scratch))| {
+                    fusion.band(Band {
+                        index,
+                        first: index * band_cells,
+                        cells,
+                        stacks,
+                        accs,
+                        spill,
+                        pending,
+                        scratch,
+                    })
+                },
+            )
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        // In band order, as before the buffers were kept.
+        let mut targets = std::mem::take(&mut self.targets);
+        targets.clear();
+        for s in &self.scratch {
+            targets.extend_from_slice(&s.targets);
+        }
         let image = match (cfg.see_through_check, frame.cloud()) {
             (true, Cloud::Depth { depth_m, camera }) => {
                 Some((depth_m, camera, &frame.map_from_sensor))
@@ -462,6 +481,7 @@ impl ElevationMapper for StackMapper {
             sz,
             image,
         );
+        self.targets = targets;
         if let Some(image) = smoothed {
             self.smoother.restore(image);
         }
