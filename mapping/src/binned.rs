@@ -4,6 +4,7 @@
 //! `depth_pass` module, vectorised over rows of pixels; [`filtered_map_points`] and
 //! [`to_map_points`] give the same points in f64, one at a time.
 
+use crate::depth_pass::SliceScratch;
 use crate::input::{
     Cloud, DepthPixel, EdgeFilter, HeightModel, HeightSample, Placement, RayCache, Rays, Reason,
     Rejections, SensorFrame,
@@ -105,16 +106,23 @@ pub struct Binned {
     /// `[slice][band]`, each list in measurement order.
     lists: Vec<Vec<Vec<CellPoint>>>,
     rejections: Vec<Rejections>,
+    /// Per slice: the depth pass's buffers, kept from frame to frame.
+    scratch: Vec<SliceScratch>,
 }
 
 impl Binned {
-    /// Bytes held by the lists.
+    /// Bytes held by the lists and the buffers.
     pub fn memory_bytes(&self) -> usize {
         self.lists
             .iter()
             .flatten()
             .map(|l| l.capacity() * std::mem::size_of::<CellPoint>())
-            .sum()
+            .sum::<usize>()
+            + self
+                .scratch
+                .iter()
+                .map(SliceScratch::memory_bytes)
+                .sum::<usize>()
     }
 
     /// The measurements of band `b`, in measurement order (pixel order for depth images).
@@ -160,6 +168,7 @@ pub fn prepare_binned<M: HeightModel>(
     out.lists.resize_with(SLICES, Vec::new);
     out.rejections.clear();
     out.rejections.resize(SLICES, Rejections::default());
+    out.scratch.resize_with(SLICES, SliceScratch::default);
     for slice in &mut out.lists {
         slice.resize_with(bands, Vec::new);
         slice.iter_mut().for_each(Vec::clear);
@@ -202,8 +211,9 @@ pub fn prepare_binned<M: HeightModel>(
             out.lists
                 .par_iter_mut()
                 .zip(out.rejections.par_iter_mut())
+                .zip(out.scratch.par_iter_mut())
                 .enumerate()
-                .for_each(|(s, (lists, rej))| {
+                .for_each(|(s, ((lists, rej), scratch))| {
                     let rows = (s * rows_per_slice)..((s + 1) * rows_per_slice).min(h);
                     let slice = DepthSlice {
                         depth: depth_m,
@@ -214,10 +224,13 @@ pub fn prepare_binned<M: HeightModel>(
                         place: &place,
                         model,
                     };
+                    let out = (&mut lists[..], rej);
                     if centrality {
-                        crate::depth_pass::bin_depth_slice::<M, true>(slice, binning, lists, rej);
+                        crate::depth_pass::bin_depth_slice::<M, true>(slice, binning, out, scratch);
                     } else {
-                        crate::depth_pass::bin_depth_slice::<M, false>(slice, binning, lists, rej);
+                        crate::depth_pass::bin_depth_slice::<M, false>(
+                            slice, binning, out, scratch,
+                        );
                     }
                 });
         }

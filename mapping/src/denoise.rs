@@ -119,9 +119,13 @@ impl Smoother {
         self.tol.clear();
         self.tol.resize(w * h, 0.0);
         let k = cfg.sigmas as f32;
+        // The padding rows are left out by slicing, not by rayon's `skip`, which spawns a
+        // task (a heap allocation) for the rows it skips.
+        let inner = r * pw..(r + h) * pw;
         self.inverse
+            .get_mut(inner.clone())
+            .unwrap_or(&mut [])
             .par_chunks_mut(pw)
-            .skip(r)
             .zip(self.tol.par_chunks_mut(w))
             .zip(depth.as_slice().par_chunks(w))
             .for_each(|((q, tol), d)| {
@@ -137,9 +141,9 @@ impl Smoother {
         let (inverse, tol) = (&self.inverse, &self.tol);
         // Along the rows.
         self.across
+            .get_mut(inner)
+            .unwrap_or(&mut [])
             .par_chunks_mut(pw)
-            .skip(r)
-            .take(h)
             .enumerate()
             .for_each(|(v, dst)| {
                 let row = inverse.get((v + r) * pw..(v + r + 1) * pw).unwrap_or(&[]);

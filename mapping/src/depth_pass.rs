@@ -26,7 +26,7 @@ const SMOOTH_SPAN: f32 = 1.5;
 
 /// One row of a depth image after the vectorised passes of [`bin_depth_slice`]: per pixel
 /// the ray, the height (m), its variance (m²), the cell, and flags.
-#[derive(Default)]
+#[derive(Debug, Clone, Default)]
 struct FlatRow {
     xn: Vec<f32>,
     yn: Vec<f32>,
@@ -42,6 +42,42 @@ struct FlatRow {
     /// [`CellPoint::centrality`].
     centrality: Vec<f32>,
     flags: Vec<u32>,
+}
+
+/// One slice's buffers for [`bin_depth_slice`], kept from frame to frame (in
+/// [`crate::binned::Binned`]) so that a frame allocates nothing: the row's rays, its pixels'
+/// neighbourhoods, its passes' values and the kept pixels' indices.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct SliceScratch {
+    rays: Vec<(f64, f64)>,
+    nb: Neighbourhood,
+    row: FlatRow,
+    kept: Vec<u32>,
+}
+
+impl SliceScratch {
+    /// Bytes held.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        let f = std::mem::size_of::<f32>();
+        let r = &self.row;
+        self.rays.capacity() * std::mem::size_of::<(f64, f64)>()
+            + self.nb.memory_bytes()
+            + [
+                &r.xn,
+                &r.yn,
+                &r.z,
+                &r.var,
+                &r.row,
+                &r.col,
+                &r.cell,
+                &r.band,
+                &r.centrality,
+            ]
+            .iter()
+            .map(|v| v.capacity() * f)
+            .sum::<usize>()
+            + (r.flags.capacity() + self.kept.capacity()) * std::mem::size_of::<u32>()
+    }
 }
 
 /// `binned::depth_slice` straight into band lists, in f32: the window's corner is subtracted
@@ -61,14 +97,15 @@ struct FlatRow {
 pub(crate) fn bin_depth_slice<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
     binning: Binning<'_>,
-    lists: &mut [Vec<CellPoint>],
-    rej: &mut Rejections,
+    (lists, rej): (&mut [Vec<CellPoint>], &mut Rejections),
+    scratch: &mut SliceScratch,
 ) {
     crate::simd::dispatch(BinSlice::<M, CENTRALITY> {
         s,
         binning,
         lists,
         rej,
+        scratch,
     });
 }
 
@@ -78,6 +115,7 @@ struct BinSlice<'a, 'b, M: ?Sized, const CENTRALITY: bool> {
     binning: Binning<'b>,
     lists: &'b mut [Vec<CellPoint>],
     rej: &'b mut Rejections,
+    scratch: &'b mut SliceScratch,
 }
 
 impl<M: HeightModel + ?Sized, const CENTRALITY: bool> pulp::WithSimd
@@ -87,7 +125,12 @@ impl<M: HeightModel + ?Sized, const CENTRALITY: bool> pulp::WithSimd
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        bin_depth_slice_body::<M, CENTRALITY>(self.s, self.binning, self.lists, self.rej);
+        bin_depth_slice_body::<M, CENTRALITY>(
+            self.s,
+            self.binning,
+            (self.lists, self.rej),
+            self.scratch,
+        );
     }
 }
 
@@ -96,8 +139,8 @@ impl<M: HeightModel + ?Sized, const CENTRALITY: bool> pulp::WithSimd
 fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
     s: DepthSlice<'_, M>,
     binning: Binning<'_>,
-    lists: &mut [Vec<CellPoint>],
-    rej: &mut Rejections,
+    (lists, rej): (&mut [Vec<CellPoint>], &mut Rejections),
+    scratch: &mut SliceScratch,
 ) {
     let pl = s.place;
     let (binner, smooth) = (binning.binner, binning.smooth);
@@ -134,11 +177,14 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         .map_or(f32::INFINITY, |e| e.threshold_m(1.0, f_px, 0.0) as f32);
     // The edge filter's noise allowance per metre of depth standard deviation.
     let edge_noise = s.edge.map_or(0.0, |e| e.threshold_m(0.0, f_px, 1.0) as f32);
-    let (mut rays, mut nb) = (Vec::new(), Neighbourhood::default());
-    let mut kept: Vec<u32> = Vec::new();
-    let mut r = FlatRow::default();
+    let SliceScratch {
+        rays,
+        nb,
+        row: r,
+        kept,
+    } = scratch;
     for v in s.rows.clone() {
-        let Some(drow) = s.row_inputs(v, &mut rays, &mut nb, smooth) else {
+        let Some(drow) = s.row_inputs(v, rays, nb, smooth) else {
             continue;
         };
         // Buffers sized once per slice; every entry up to `n` is written below.
@@ -162,7 +208,7 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             .min(nb.near1.len())
             .min(nb.near2.len())
             .min(nb.span2.len());
-        for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(&rays) {
+        for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(rays.iter()) {
             (*x, *y) = (rx as f32, ry as f32);
         }
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
@@ -252,7 +298,7 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 kept.push(u as u32);
             }
         }
-        for &u in &kept {
+        for &u in kept.iter() {
             let u = u as usize;
             let (Some(&band), Some(&cell), Some(&z), Some(&var)) =
                 (bands.get(u), cells.get(u), zs.get(u), vars.get(u))

@@ -11,7 +11,7 @@ use stride_core::image::DepthImage;
 /// an edge filter) and, on request, the span (largest minus smallest, m) of the non-zero
 /// depths of the 5 x 5 neighbourhood (0 with one depth; infinity when not asked for).
 /// Missing returns (0, NaN, infinities) are left out: a hole is no jump.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct Neighbourhood {
     /// Nearest depth within one pixel.
     pub(crate) near1: Vec<f32>,
@@ -25,6 +25,15 @@ pub(crate) struct Neighbourhood {
 }
 
 impl Neighbourhood {
+    /// Bytes held.
+    pub(crate) fn memory_bytes(&self) -> usize {
+        [&self.near1, &self.near2, &self.span2]
+            .into_iter()
+            .chain(&self.cols)
+            .map(|v| v.capacity() * std::mem::size_of::<f32>())
+            .sum()
+    }
+
     /// Fills the fields for row `v` of `depth` (`span` on request) in one pass over its five
     /// rows, branch-free so that it vectorises (in the copy for this CPU's instruction set:
     /// [`crate::simd`]; the same results).
