@@ -13,19 +13,25 @@ use crate::stack::StackConfig;
 /// column had too many distinct voxels this frame.
 pub(crate) type BandUpdate = (usize, usize);
 
-/// One band's buffers, kept from frame to frame so that a frame allocates nothing.
+/// What a band of the window keeps from frame to frame: the columns whose vitality may
+/// still decay, and buffers whose capacity is kept so that a frame allocates nothing.
 #[derive(Debug, Default)]
-pub(crate) struct BandScratch {
+pub(crate) struct BandState {
+    /// Columns of this band not yet established, whose vitality may decay.
+    pub(crate) pending: Vec<u32>,
+    /// The pool of spilled accumulators (emptied at each frame).
+    spill: Vec<Spilled>,
     /// Columns touched this frame (storage indices).
     touched: Vec<u32>,
-    /// Updated, established cells for the visibility check.
+    /// Updated, established cells for the visibility check (this frame's).
     pub(crate) targets: Vec<Target>,
 }
 
-impl BandScratch {
-    /// Bytes held.
+impl BandState {
+    /// Bytes held by its pool and buffers (the pending list is not counted, as before).
     pub(crate) fn memory_bytes(&self) -> usize {
         self.touched.capacity() * std::mem::size_of::<u32>()
+            + self.spill.capacity() * std::mem::size_of::<Spilled>()
             + self.targets.capacity() * std::mem::size_of::<Target>()
     }
 }
@@ -49,16 +55,12 @@ pub(crate) struct Band<'b> {
     pub(crate) cells: &'b mut [Cell],
     pub(crate) stacks: &'b mut [Stack],
     pub(crate) accs: &'b mut [Accs],
-    /// The band's pool of spilled accumulators (emptied at each frame; its capacity kept).
-    pub(crate) spill: &'b mut Vec<Spilled>,
-    /// Columns of this band not yet established, whose vitality may decay.
-    pub(crate) pending: &'b mut Vec<u32>,
-    pub(crate) scratch: &'b mut BandScratch,
+    pub(crate) state: &'b mut BandState,
 }
 
 impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
     /// Fuses this frame's measurements into one band; its visibility targets are left in
-    /// `band.scratch.targets`.
+    /// `band.state.targets`.
     pub(crate) fn band(&self, band: Band<'_>) -> BandUpdate {
         let Band {
             index,
@@ -66,14 +68,17 @@ impl<L: Fn(usize) -> (f64, f64)> Fusion<'_, L> {
             cells,
             stacks,
             accs,
-            spill,
-            pending,
-            scratch,
+            state,
         } = band;
+        let BandState {
+            pending,
+            spill,
+            touched,
+            targets,
+        } = state;
         spill.clear();
-        scratch.touched.clear();
-        scratch.targets.clear();
-        let BandScratch { touched, targets } = scratch;
+        touched.clear();
+        targets.clear();
         let counts = self.accumulate(index, first, cells, accs, spill, touched);
         self.apply(
             first,

@@ -36,10 +36,10 @@
 
 use crate::archive::{Archive, Archived};
 use crate::checks::{LosTable, SeeThrough, Target};
-use crate::column::{Accs, Cell, Spilled, Stack, Voxel};
+use crate::column::{Accs, Cell, Stack, Voxel};
 use crate::denoise::Smoother;
 use crate::error::MappingError;
-use crate::fuse::{Band, BandScratch, BandUpdate, Fusion};
+use crate::fuse::{Band, BandState, BandUpdate, Fusion};
 use crate::input::{
     prepare_binned, Binned, Binning, Cloud, PrimeSenseHeight, RayCache, SensorFrame,
 };
@@ -61,15 +61,12 @@ pub struct StackMapper {
     stacks: Vec<Stack>,
     /// Per-frame accumulators, by the same storage index.
     accs: Vec<Accs>,
-    /// Per band: the accumulators of columns measured over more voxels than [`Accs`] holds.
-    spill: Vec<Vec<Spilled>>,
     archive: Archive,
     rays: RayCache,
     binned: Binned,
-    /// Per band: columns not yet established whose vitality may decay.
-    pending: Vec<Vec<u32>>,
-    /// Per band: the fusion's buffers.
-    scratch: Vec<BandScratch>,
+    /// Per band: columns whose vitality may decay, and the fusion's buffers (among them the
+    /// accumulators of columns measured over more voxels than [`Accs`] holds).
+    bands: Vec<BandState>,
     /// The visibility check's targets of all bands (a buffer kept from frame to frame).
     targets: Vec<Target>,
     band_cells: usize,
@@ -97,13 +94,11 @@ impl StackMapper {
             cfg,
             stacks: vec![Stack::default(); size * size],
             accs: vec![Accs::default(); size * size],
-            spill: vec![Vec::new(); BANDS],
             window,
             archive: Archive::default(),
             rays: RayCache::default(),
             binned: Binned::default(),
-            pending: vec![Vec::new(); BANDS],
-            scratch: (0..BANDS).map(|_| BandScratch::default()).collect(),
+            bands: (0..BANDS).map(|_| BandState::default()).collect(),
             targets: Vec::new(),
             band_cells,
             los_table: Vec::new(),
@@ -180,7 +175,7 @@ impl StackMapper {
             // Evicted columns were reset: drop them from the decay lists before their storage
             // is reused (otherwise a new column there would decay twice per frame).
             let cells = self.window.cells();
-            for list in &mut self.pending {
+            for list in self.bands.iter_mut().map(|b| &mut b.pending) {
                 list.retain(|&ci| cells.get(ci as usize).is_some_and(|c| c.pending));
             }
             self.reload_archived();
@@ -355,20 +350,15 @@ impl ElevationMapper for StackMapper {
             + self.stacks.capacity() * std::mem::size_of::<Stack>()
             + self.accs.capacity() * std::mem::size_of::<Accs>()
             + self
-                .spill
+                .bands
                 .iter()
-                .map(|s| s.capacity() * std::mem::size_of::<Spilled>())
+                .map(BandState::memory_bytes)
                 .sum::<usize>()
             + self.archive.memory_bytes()
             + self.binned.memory_bytes()
             + self.los_table.capacity() * std::mem::size_of::<f32>()
             + self.smoother.memory_bytes()
             + self.pusher.memory_bytes()
-            + self
-                .scratch
-                .iter()
-                .map(BandScratch::memory_bytes)
-                .sum::<usize>()
             + self.targets.capacity() * std::mem::size_of::<Target>()
     }
 
@@ -443,30 +433,24 @@ impl ElevationMapper for StackMapper {
             .par_chunks_mut(band_cells)
             .zip(self.stacks.par_chunks_mut(band_cells))
             .zip(self.accs.par_chunks_mut(band_cells))
-            .zip(self.spill.par_iter_mut())
-            .zip(self.pending.par_iter_mut())
-            .zip(self.scratch.par_iter_mut())
+            .zip(self.bands.par_iter_mut())
             .enumerate()
-            .map(
-                |(index, (((((cells, stacks), accs), spill), pending), scratch))| {
-                    fusion.band(Band {
-                        index,
-                        first: index * band_cells,
-                        cells,
-                        stacks,
-                        accs,
-                        spill,
-                        pending,
-                        scratch,
-                    })
-                },
-            )
+            .map(|(index, (((cells, stacks), accs), state))| {
+                fusion.band(Band {
+                    index,
+                    first: index * band_cells,
+                    cells,
+                    stacks,
+                    accs,
+                    state,
+                })
+            })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         // In band order, as before the buffers were kept.
         let mut targets = std::mem::take(&mut self.targets);
         targets.clear();
-        for s in &self.scratch {
-            targets.extend_from_slice(&s.targets);
+        for b in &self.bands {
+            targets.extend_from_slice(&b.targets);
         }
         let image = match (cfg.see_through_check, frame.cloud()) {
             (true, Cloud::Depth { depth_m, camera }) => {
