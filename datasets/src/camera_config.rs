@@ -37,6 +37,13 @@ pub struct CameraConfig {
 /// TUM's depth scale: 16-bit depth PNGs hold 5000 units per metre.
 pub const TUM_DEPTH_SCALE: f64 = 5000.0;
 
+/// The depth scale of the `fr2` preset (units per metre): the Freiburg 2 sequences' depth
+/// reads about 4 % long at TUM's nominal 5000, and ORB-SLAM2/ORB-SLAM3's TUM2 settings (and
+/// the peers' harness, `../shared/tools/peers`) read it at 5208. The same value here keeps
+/// `--camera fr2` runs at the scale the ground truth has and comparable with those peers; a
+/// camera file's `depth_scale` overrides it.
+pub const TUM_FR2_DEPTH_SCALE: f64 = 5208.0;
+
 /// The serialised form of a camera file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 struct CameraFile {
@@ -63,20 +70,23 @@ fn is_zero(v: &f64) -> bool {
 pub const PRESET_NAMES: [&str; 3] = ["fr1", "fr2", "fr3"];
 
 impl CameraConfig {
-    /// The TUM RGB-D benchmark's calibrated cameras (Freiburg 1, 2 and 3; 640x480, depth
-    /// scale 5000). fr1 and fr2 carry the published distortion; fr3 images are already
-    /// undistorted. `None` for an unknown name.
+    /// The TUM RGB-D benchmark's calibrated cameras (Freiburg 1, 2 and 3; 640x480). fr1 and
+    /// fr2 carry the published distortion; fr3 images are already undistorted. Depth scale
+    /// 5000 units per metre, except fr2: [`TUM_FR2_DEPTH_SCALE`]. `None` for an unknown
+    /// name.
     pub fn preset(name: &str) -> Option<Self> {
-        let (intr, dist) = match name {
+        let (intr, dist, depth_scale) = match name {
             "fr1" => (
                 (517.306408, 516.469215, 318.643040, 255.313989),
                 Some([0.262383, -0.953104, -0.005358, 0.002628, 1.163314]),
+                TUM_DEPTH_SCALE,
             ),
             "fr2" => (
                 (520.908620, 521.007327, 325.141442, 249.701764),
                 Some([0.231222, -0.784899, -0.003257, -0.000105, 0.917205]),
+                TUM_FR2_DEPTH_SCALE,
             ),
-            "fr3" => ((535.4, 539.2, 320.1, 247.6), None),
+            "fr3" => ((535.4, 539.2, 320.1, 247.6), None, TUM_DEPTH_SCALE),
             _ => return None,
         };
         let camera = PinholeCamera::new(intr.0, intr.1, intr.2, intr.3, 640, 480).ok()?;
@@ -86,7 +96,7 @@ impl CameraConfig {
         };
         Some(Self {
             camera,
-            depth_scale: TUM_DEPTH_SCALE,
+            depth_scale,
             rolling_shutter_s: 0.0,
             exposure_s: 0.0,
         })
@@ -274,6 +284,11 @@ mod tests {
         assert_eq!((fr3.camera.cx(), fr3.camera.cy()), (320.1, 247.6));
         assert!(fr3.camera.distortion().is_none());
         assert_eq!(fr3.depth_scale, 5000.0);
+        assert_eq!(fr1.depth_scale, 5000.0);
+        // Freiburg 2's depth reads about 4 % long at 5000 (ORB-SLAM's TUM2 settings).
+        let fr2 = CameraConfig::preset("fr2").unwrap();
+        assert_eq!(fr2.depth_scale, 5208.0);
+        assert_eq!(fr2.camera.fx(), 520.908620);
         assert!(CameraConfig::preset("fr4").is_none());
     }
 
