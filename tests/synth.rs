@@ -219,7 +219,7 @@ fn fast_tripod_blurs_more_than_slow_crawl_and_blur_follows_the_gait() {
     // speed's magnitude, which peaks twice per oscillation).
     let c = correlation(&s_fast, &m_fast).unwrap();
     assert!(c < -0.5, "correlation of sharpness with image motion: {c}");
-    let f = dominant_frequency_hz(&s_fast, 30.0).unwrap();
+    let f = dominant_frequency_hz(&s_fast, 30.0, 0.0).unwrap();
     let bin = 30.0 / frames as f64;
     assert!(
         (f - step_hz).abs() <= bin || (f - 2.0 * step_hz).abs() <= bin,

@@ -55,15 +55,22 @@ pub fn gradient_energy(img: &GrayImage) -> f64 {
 }
 
 /// The frequency (Hz) with the largest amplitude in the discrete Fourier transform of a
-/// series sampled at `rate_hz`, excluding the mean (bin 0). `None` for fewer than 4 samples.
-pub fn dominant_frequency_hz(series: &[f64], rate_hz: f64) -> Option<f64> {
+/// series sampled at `rate_hz`, among the frequencies of at least `min_hz` (Hz; the mean,
+/// bin 0, never counts). `None` for fewer than 4 samples or when no frequency up to half the
+/// rate reaches `min_hz`.
+pub fn dominant_frequency_hz(series: &[f64], rate_hz: f64, min_hz: f64) -> Option<f64> {
     let n = series.len();
     if n < 4 {
         return None;
     }
     let mean = series.iter().sum::<f64>() / n as f64;
-    let mut best = (0.0f64, 0usize);
-    for k in 1..=n / 2 {
+    // The lowest bin at or above `min_hz` (bin k is k rate / n Hz).
+    let first = ((min_hz * n as f64 / rate_hz).ceil().max(1.0) as usize).max(1);
+    if first > n / 2 {
+        return None;
+    }
+    let mut best = (0.0f64, first);
+    for k in first..=n / 2 {
         let (mut re, mut im) = (0.0, 0.0);
         for (i, v) in series.iter().enumerate() {
             let a = std::f64::consts::TAU * (k * i) as f64 / n as f64;
@@ -141,7 +148,21 @@ mod tests {
         let s: Vec<f64> = (0..120)
             .map(|i| (std::f64::consts::TAU * 2.5 * i as f64 / 30.0).sin())
             .collect();
-        assert!((dominant_frequency_hz(&s, 30.0).unwrap() - 2.5).abs() < 0.26);
+        assert!((dominant_frequency_hz(&s, 30.0, 0.0).unwrap() - 2.5).abs() < 0.26);
+        // A slow swing four times stronger (turns along a path) wins without a floor; above
+        // 0.5 Hz the step frequency is found again.
+        let walk: Vec<f64> = (0..300)
+            .map(|i| {
+                let t = i as f64 / 10.0;
+                4.0 * (std::f64::consts::TAU * 0.13 * t).sin()
+                    + (std::f64::consts::TAU * 1.9 * t).sin()
+            })
+            .collect();
+        let slow = dominant_frequency_hz(&walk, 10.0, 0.0).unwrap();
+        assert!((slow - 0.13).abs() < 0.04, "{slow}");
+        let step = dominant_frequency_hz(&walk, 10.0, 0.5).unwrap();
+        assert!((step - 1.9).abs() < 0.04, "{step}");
+        assert_eq!(dominant_frequency_hz(&walk, 10.0, 6.0), None);
         let neg: Vec<f64> = s.iter().map(|v| -2.0 * v + 1.0).collect();
         assert!((correlation(&s, &neg).unwrap() + 1.0).abs() < 1e-12);
     }
