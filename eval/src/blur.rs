@@ -65,7 +65,7 @@ pub fn dominant_frequency_hz(series: &[f64], rate_hz: f64, min_hz: f64) -> Optio
     }
     let mean = series.iter().sum::<f64>() / n as f64;
     // The lowest bin at or above `min_hz` (bin k is k rate / n Hz).
-    let first = ((min_hz * n as f64 / rate_hz).ceil().max(1.0) as usize).max(1);
+    let first = (min_hz * n as f64 / rate_hz).ceil().max(1.0) as usize;
     if first > n / 2 {
         return None;
     }
