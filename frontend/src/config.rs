@@ -164,6 +164,11 @@ pub struct VoConfig {
     /// marked [`crate::TrackingStatus::DepthAligned`]. Needs `recovery_keyframes` (the last
     /// keyframe's depth is kept with them).
     pub depth_alignment: bool,
+    /// After dropped frames, a frame that the depth alignment from the motion model's guess
+    /// cannot place either is aligned from a grid of starts around the guess and placed by
+    /// the best-paired result ([`crate::depth_search`]; 1-3 s once per such gap). Needs
+    /// `depth_alignment`.
+    pub depth_search: bool,
     /// Depth links between keyframes ([`crate::KeyframeInfo::depth`]): a new keyframe
     /// whose pose rests on fewer than `keyframe_depth_link_inliers` inliers (a wide
     /// baseline after dropped frames, a blurred image) has its depth image aligned with the
@@ -569,6 +574,7 @@ impl Default for VoConfig {
             recovery_min_inliers: 20,
             relocalization_keyframes: Some(2000),
             depth_alignment: true,
+            depth_search: true,
             keyframe_depth_link_inliers: 60,
             rolling_shutter_s: 0.0,
             exposure_s: 0.0,

@@ -59,6 +59,21 @@ const LEVELS: [Level; 3] = [
     },
 ];
 
+/// Two coarser levels ahead of [`LEVELS`], for a start that may be 0.1-0.2 m and several
+/// degrees from the pose ([`align_wide`]): sparser samples paired within 40, then 20 cm.
+const WIDE_LEVELS: [Level; 2] = [
+    Level {
+        stride: 16,
+        max_distance_m: 0.40,
+        iterations: 10,
+    },
+    Level {
+        stride: 8,
+        max_distance_m: 0.20,
+        iterations: 8,
+    },
+];
+
 /// Pixels either side of a keyframe pixel whose points give its normal.
 const NORMAL_STEP_PX: u32 = 2;
 
@@ -179,11 +194,35 @@ pub fn align(
     camera: &PinholeCamera,
     params: &DepthAlignParams,
 ) -> Result<DepthAlignment, DepthAlignError> {
+    align_levels(keyframe, current, camera, params, &LEVELS)
+}
+
+/// [`align`] with two coarser levels first (every 16th pixel paired within 40 cm, then
+/// every 8th within 20 cm), so that it reaches the pose from 0.1-0.2 m and several degrees
+/// away: for a search over many starts ([`crate::depth_search`]).
+pub fn align_wide(
+    keyframe: &DepthView<'_>,
+    current: &DepthView<'_>,
+    camera: &PinholeCamera,
+    params: &DepthAlignParams,
+) -> Result<DepthAlignment, DepthAlignError> {
+    let levels: Vec<Level> = WIDE_LEVELS.iter().chain(&LEVELS).copied().collect();
+    align_levels(keyframe, current, camera, params, &levels)
+}
+
+/// The alignment over `levels`, coarse to fine.
+fn align_levels(
+    keyframe: &DepthView<'_>,
+    current: &DepthView<'_>,
+    camera: &PinholeCamera,
+    params: &DepthAlignParams,
+    levels: &[Level],
+) -> Result<DepthAlignment, DepthAlignError> {
     let kf_from_world = keyframe.world_from_camera.inverse();
     let mut world_from_cur = current.world_from_camera;
     let mut last = Normal::default();
     let mut sampled: Option<(u32, Vec<Point3<f64>>)> = None;
-    for level in LEVELS {
+    for &level in levels {
         if sampled.as_ref().map(|s| s.0) != Some(level.stride) {
             let points = samples(current.depth_m, camera, level.stride, params);
             sampled = Some((level.stride, points));

@@ -17,6 +17,7 @@
 pub mod config;
 pub mod depth_align;
 mod depth_link;
+pub mod depth_search;
 pub mod error;
 pub mod features;
 mod guided;

@@ -175,7 +175,7 @@ pub(crate) struct RecentKeyframe {
     /// Its identifier.
     pub(crate) id: u64,
     pyramid: Rc<Pyramid>,
-    depth_m: DepthImage,
+    pub(crate) depth_m: DepthImage,
     /// Its `world_from_camera`.
     pub(crate) world_from_kf: Isometry3<f64>,
     /// Its ORB points, computed the first time recovery needs them.

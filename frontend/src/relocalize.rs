@@ -294,8 +294,15 @@ impl VisualOdometry {
             return Ok(Some((r, TrackingStatus::Recovered)));
         }
         let aligned = self.align_depth(frame, world_from_pred, None);
+        if let Some(r) = self.held_to_gyroscope(aligned, gyroscope) {
+            return Ok(Some((r, TrackingStatus::DepthAligned)));
+        }
+        // After dropped frames the guess can be beyond the alignment's reach: many starts.
+        let searched = after_gap
+            .then(|| self.search_depth(frame, world_from_pred))
+            .flatten();
         Ok(self
-            .held_to_gyroscope(aligned, gyroscope)
+            .held_to_gyroscope(searched, gyroscope)
             .map(|r| (r, TrackingStatus::DepthAligned)))
     }
 
