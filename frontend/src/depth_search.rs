@@ -108,16 +108,26 @@ impl VisualOdometry {
             "frame {}: depth search placed it against keyframe {} ({} of {} samples paired, rms {:.2} sigma)",
             frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas
         );
-        Some(Recovered {
-            world_from_cur: a.world_from_cur,
-            inliers: 0,
-            iterations: 0,
-            information: a.information,
-            tracks: Vec::new(),
-            matches: 0,
-            matched_keyframe: kf.id,
-            matched_from_cur: kf.world_from_kf.inverse() * a.world_from_cur,
-        })
+        Some(placed_by_depth(&a, kf.id, &kf.world_from_kf))
+    }
+}
+
+/// A frame placed by the depth alignment `a` with keyframe `kf_id` (at `world_from_kf`):
+/// no inliers and no tracks (the keyframe it starts detects new corners).
+pub(crate) fn placed_by_depth(
+    a: &DepthAlignment,
+    kf_id: u64,
+    world_from_kf: &Isometry3<f64>,
+) -> Recovered {
+    Recovered {
+        world_from_cur: a.world_from_cur,
+        inliers: 0,
+        iterations: 0,
+        information: a.information,
+        tracks: Vec::new(),
+        matches: 0,
+        matched_keyframe: kf_id,
+        matched_from_cur: world_from_kf.inverse() * a.world_from_cur,
     }
 }
 

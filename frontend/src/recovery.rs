@@ -507,16 +507,11 @@ impl VisualOdometry {
             "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",
             frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas, a.condition
         );
-        Some(Recovered {
-            world_from_cur: a.world_from_cur,
-            inliers: 0,
-            iterations: 0,
-            information: a.information,
-            tracks: Vec::new(),
-            matches: 0,
-            matched_keyframe: kf.id,
-            matched_from_cur: kf.world_from_kf.inverse() * a.world_from_cur,
-        })
+        Some(crate::depth_search::placed_by_depth(
+            &a,
+            kf.id,
+            &kf.world_from_kf,
+        ))
     }
 
     /// Aligns `frame`'s depth with recent keyframe `kf`'s ([`crate::depth_align`]): the
