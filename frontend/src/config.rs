@@ -166,8 +166,8 @@ pub struct VoConfig {
     pub depth_alignment: bool,
     /// After dropped frames, a frame that the depth alignment from the motion model's guess
     /// cannot place either is aligned from a grid of starts around the guess and placed by
-    /// the best-paired result ([`crate::depth_search`]; 1-3 s once per such gap). Needs
-    /// `depth_alignment`.
+    /// the best-paired result ([`crate::depth_search`]; about 1 s on two cores, once per
+    /// such gap). Needs `depth_alignment`.
     pub depth_search: bool,
     /// Depth links between keyframes ([`crate::KeyframeInfo::depth`]): a new keyframe
     /// whose pose rests on fewer than `keyframe_depth_link_inliers` inliers (a wide

@@ -10,7 +10,9 @@
 //! about the camera's vertical axis by up to [`MAX_TURN_DEG`] in steps of [`TURN_STEP_DEG`],
 //! moved sideways and along the view by up to [`MAX_MOVE_M`] in steps of [`MOVE_STEP_M`].
 //! Of the starts that converge and pass the alignment's own checks, the one with the most
-//! samples paired wins. The grid is fixed, so the result is repeatable.
+//! samples paired wins (the first in the grid's order among equals). The grid is fixed and
+//! the starts run in parallel with their results kept in order, so the result is repeatable
+//! whatever the thread count.
 
 use crate::depth_align::{align_wide, DepthAlignParams, DepthAlignment, DepthView};
 use crate::recovery::Recovered;
@@ -59,15 +61,22 @@ pub fn best_of_starts(
     camera: &stride_core::camera::PinholeCamera,
     params: &DepthAlignParams,
 ) -> Option<DepthAlignment> {
-    starts(&current.world_from_camera)
-        .into_iter()
-        .filter_map(|start| {
+    use rayon::prelude::*;
+    // In parallel, collected in the grid's order: the first of equally paired results wins
+    // whatever the thread count.
+    let aligned: Vec<Option<DepthAlignment>> = starts(&current.world_from_camera)
+        .into_par_iter()
+        .map(|start| {
             let view = DepthView {
                 depth_m: current.depth_m,
                 world_from_camera: start,
             };
             align_wide(keyframe, &view, camera, params).ok()
         })
+        .collect();
+    aligned
+        .into_iter()
+        .flatten()
         .fold(None, |best: Option<DepthAlignment>, a| match best {
             Some(b) if b.pairs >= a.pairs => Some(b),
             _ => Some(a),
