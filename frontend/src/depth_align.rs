@@ -194,7 +194,7 @@ pub fn align(
     camera: &PinholeCamera,
     params: &DepthAlignParams,
 ) -> Result<DepthAlignment, DepthAlignError> {
-    align_levels(keyframe, current, camera, params, &LEVELS)
+    align_levels(keyframe, current, camera, params, LEVELS)
 }
 
 /// [`align`] with two coarser levels first (every 16th pixel paired within 40 cm, then
@@ -206,8 +206,8 @@ pub fn align_wide(
     camera: &PinholeCamera,
     params: &DepthAlignParams,
 ) -> Result<DepthAlignment, DepthAlignError> {
-    let levels: Vec<Level> = WIDE_LEVELS.iter().chain(&LEVELS).copied().collect();
-    align_levels(keyframe, current, camera, params, &levels)
+    let levels = WIDE_LEVELS.into_iter().chain(LEVELS);
+    align_levels(keyframe, current, camera, params, levels)
 }
 
 /// The alignment over `levels`, coarse to fine.
@@ -216,13 +216,13 @@ fn align_levels(
     current: &DepthView<'_>,
     camera: &PinholeCamera,
     params: &DepthAlignParams,
-    levels: &[Level],
+    levels: impl IntoIterator<Item = Level>,
 ) -> Result<DepthAlignment, DepthAlignError> {
     let kf_from_world = keyframe.world_from_camera.inverse();
     let mut world_from_cur = current.world_from_camera;
     let mut last = Normal::default();
     let mut sampled: Option<(u32, Vec<Point3<f64>>)> = None;
-    for &level in levels {
+    for level in levels {
         if sampled.as_ref().map(|s| s.0) != Some(level.stride) {
             let points = samples(current.depth_m, camera, level.stride, params);
             sampled = Some((level.stride, points));
