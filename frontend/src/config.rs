@@ -167,7 +167,9 @@ pub struct VoConfig {
     /// After dropped frames, a frame that the depth alignment from the motion model's guess
     /// cannot place either is aligned from a grid of starts around the guess and placed by
     /// the best-paired result ([`crate::depth_search`]; about 1 s on two cores, once per
-    /// such gap). Needs `depth_alignment`.
+    /// such gap); and a pose from ORB matches for the first frame after dropped frames is
+    /// checked against the frame's depth, which replaces it when they disagree by more
+    /// than 5 cm or 3 degrees. Needs `depth_alignment`.
     pub depth_search: bool,
     /// Depth links between keyframes ([`crate::KeyframeInfo::depth`]): a new keyframe
     /// whose pose rests on fewer than `keyframe_depth_link_inliers` inliers (a wide

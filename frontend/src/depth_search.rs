@@ -1,5 +1,5 @@
 //! The depth alignment from many starts, for the first frame after dropped frames that
-//! nothing else places.
+//! nothing else places, and the depth's check of a pose from ORB matches for that frame.
 //!
 //! After a gap of a second or two the motion model's guess can be 0.2-0.5 m and 10-30
 //! degrees off, beyond the reach of the depth alignment ([`crate::depth_align`]), while the
@@ -13,6 +13,10 @@
 //! samples paired wins (the first in the grid's order among equals). The grid is fixed and
 //! the starts run in parallel with their results kept in order, so the result is repeatable
 //! whatever the thread count.
+//!
+//! The same depth checks a pose that ORB matches give such a frame
+//! (`VisualOdometry::checked_by_depth`): a few dozen matches between views half a metre
+//! apart can agree on a wrong pose, and the alignment started there corrects it.
 
 use crate::depth_align::{align_wide, DepthAlignParams, DepthAlignment, DepthView};
 use crate::recovery::Recovered;
@@ -31,6 +35,14 @@ pub const MOVE_STEP_M: f64 = 0.2;
 /// Fewest samples paired with the keyframe's surface, as a fraction of the samples with
 /// depth (across teddy_200's 2 s gaps the true pose pairs 23-29 %, a wrong one 19 %).
 pub const MIN_PAIRED_FRACTION: f64 = 0.2;
+/// How far (m) the depth alignment started at a pose from ORB matches may move it before
+/// the depth's pose replaces it (`VisualOdometry::checked_by_depth`). Across teddy_200's
+/// 2 s gaps the alignment lands 5-19 mm from the ground truth, so a correct ORB pose moves
+/// less; the wrong ones seen moved 120-210 mm.
+pub const CHECK_MAX_MOVE_M: f64 = 0.05;
+/// The turn (degrees) that [`CHECK_MAX_MOVE_M`] allows: the alignment lands within 0.3-2
+/// degrees of the truth there; the wrong ORB poses seen were 8-14 degrees off.
+pub const CHECK_MAX_TURN_DEG: f64 = 3.0;
 
 /// The starts around `guess` (`world_from_camera`): the guess moved in its own camera frame
 /// by `(dx, 0, dz)` and turned about its y axis (the camera's vertical).
@@ -116,6 +128,41 @@ impl VisualOdometry {
         tracing::debug!(
             "frame {}: depth search placed it against keyframe {} ({} of {} samples paired, rms {:.2} sigma)",
             frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas
+        );
+        Some(placed_by_depth(&a, kf.id, &kf.world_from_kf))
+    }
+
+    /// Checks `found`, a pose of the first frame after dropped frames from ORB matches,
+    /// against the frame's depth: the alignment with the newest keyframe, started at it,
+    /// with the search's overlap floor ([`MIN_PAIRED_FRACTION`]). When that is accepted and
+    /// moves the pose by more than [`CHECK_MAX_MOVE_M`] or [`CHECK_MAX_TURN_DEG`], the
+    /// depth's pose is returned (without tracks, as [`placed_by_depth`]); `None` when the
+    /// depth agrees, is refused, or the search is off. A few dozen ORB inliers between views
+    /// 0.5 m and 30 degrees apart can agree on a pose 0.1-0.2 m and 8-14 degrees off, which
+    /// thousands of depth samples correct (teddy_200, 2 s dropped at 2.0 and 2.2 s).
+    pub(crate) fn checked_by_depth(
+        &self,
+        frame: &RgbdFrame,
+        found: &Recovered,
+    ) -> Option<Recovered> {
+        if !(self.config.depth_alignment && self.config.depth_search) {
+            return None;
+        }
+        let kf = self.recent.keyframes.back()?;
+        let mut params = DepthAlignParams::from_config(&self.config);
+        params.min_paired_fraction = MIN_PAIRED_FRACTION;
+        let a = self.align_with(frame, kf, kf.world_from_kf, found.world_from_cur, &params)?;
+        let moved = found.world_from_cur.inverse() * a.world_from_cur;
+        let (move_m, turn_deg) = (
+            moved.translation.vector.norm(),
+            moved.rotation.angle().to_degrees(),
+        );
+        if move_m <= CHECK_MAX_MOVE_M && turn_deg <= CHECK_MAX_TURN_DEG {
+            return None;
+        }
+        tracing::debug!(
+            "frame {}: the depth moved its pose from ORB matches by {:.0} mm and {:.1} deg ({} of {} samples paired with keyframe {}); the depth's pose is kept",
+            frame.index, move_m * 1e3, turn_deg, a.pairs, a.samples, kf.id
         );
         Some(placed_by_depth(&a, kf.id, &kf.world_from_kf))
     }

@@ -228,8 +228,10 @@ impl VisualOdometry {
     /// lost frame, relocalization among the remembered keyframes, the depth alignment from
     /// where the frame's few tracks agree (after dropped frames), recovery within looser
     /// bounds (after dropped frames, also near the rough poses too few matches give:
-    /// `crate::guided`), and the depth alignment with the newest keyframe from the
-    /// predicted pose `world_from_pred`. A pose whose rotation from the previous frame
+    /// `crate::guided`), the depth alignment with the newest keyframe from the predicted
+    /// pose `world_from_pred`, and (after dropped frames) the depth search. After dropped
+    /// frames a pose from ORB matches is checked against the frame's depth
+    /// (`checked_orb_pose`). A pose whose rotation from the previous frame
     /// disagrees with `gyroscope` (the gyroscope's rotation over the same interval, `None`
     /// when it measured none) is refused and the next way tried, as tracking's estimates
     /// are: a gyroscope measures the turn across a gap better than a few ORB matches
@@ -243,9 +245,14 @@ impl VisualOdometry {
         (world_from_pred, tracked, gyroscope): Guesses,
     ) -> Result<Option<(Recovered, TrackingStatus)>, FrontendError> {
         let at_least = WEAK_REPLACED_BY_INLIER_RATIO * inliers;
+        let across_gap = self
+            .motion_model
+            .across_gap(self.prev_t, frame.t_s)
+            .is_some();
         let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO), None)?;
-        if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
-            return Ok(Some((r, TrackingStatus::Recovered)));
+        let found = (recovered, TrackingStatus::Recovered);
+        if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
+            return Ok(Some(r));
         }
         if !lost {
             return Ok(None);
@@ -253,8 +260,9 @@ impl VisualOdometry {
         if self.config.relocalization_keyframes.is_some() && self.places.len() > 0 {
             match self.relocalize(frame, pyr, gray_img) {
                 Ok(r) => {
-                    if let Some(r) = self.held_to_gyroscope(Some(r), gyroscope) {
-                        return Ok(Some((r, TrackingStatus::Relocalized)));
+                    let found = (Some(r), TrackingStatus::Relocalized);
+                    if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
+                        return Ok(Some(r));
                     }
                 }
                 Err(FrontendError::NotLocalized { most_matches, .. }) => {
@@ -268,10 +276,6 @@ impl VisualOdometry {
         }
         // After dropped frames, the depth alignment starts where the frame's few tracks
         // agree, if they do (the motion model's extrapolation over the gap can be far off).
-        let across_gap = self
-            .motion_model
-            .across_gap(self.prev_t, frame.t_s)
-            .is_some();
         let after_gap = self.config.depth_alignment && across_gap;
         let mut params = MotionParams::from_config(&self.config);
         params.min_inliers = WEAK_GUESS_MIN_INLIERS;
@@ -290,8 +294,9 @@ impl VisualOdometry {
         let guided = across_gap.then_some(crate::guided::MIN_ROUGH_INLIERS);
         let bounds = (LOST_MAX_HAMMING, LOST_RATIO);
         let recovered = self.recover(frame, pyr, at_least, bounds, guided)?;
-        if let Some(r) = self.held_to_gyroscope(recovered, gyroscope) {
-            return Ok(Some((r, TrackingStatus::Recovered)));
+        let found = (recovered, TrackingStatus::Recovered);
+        if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
+            return Ok(Some(r));
         }
         let aligned = self.align_depth(frame, world_from_pred, None);
         if let Some(r) = self.held_to_gyroscope(aligned, gyroscope) {
@@ -304,6 +309,28 @@ impl VisualOdometry {
         Ok(self
             .held_to_gyroscope(searched, gyroscope)
             .map(|r| (r, TrackingStatus::DepthAligned)))
+    }
+
+    /// A pose from ORB matches (`found`, with the status it earns) held to `gyroscope`
+    /// ([`Self::held_to_gyroscope`]) and, for the first frame after dropped frames
+    /// (`across_gap`), checked against the frame's depth
+    /// ([`VisualOdometry::checked_by_depth`]): the depth's pose, if it moves the pose
+    /// too far and the gyroscope does not disagree with it, with status `DepthAligned`.
+    fn checked_orb_pose(
+        &mut self,
+        frame: &RgbdFrame,
+        (found, status): (Option<Recovered>, TrackingStatus),
+        gyroscope: Option<&UnitQuaternion<f64>>,
+        across_gap: bool,
+    ) -> Option<(Recovered, TrackingStatus)> {
+        let r = self.held_to_gyroscope(found, gyroscope)?;
+        let by_depth = across_gap
+            .then(|| self.checked_by_depth(frame, &r))
+            .flatten();
+        match self.held_to_gyroscope(by_depth, gyroscope) {
+            Some(d) => Some((d, TrackingStatus::DepthAligned)),
+            None => Some((r, status)),
+        }
     }
 
     /// `found`, unless its rotation from the previous frame disagrees with `gyroscope`
