@@ -166,7 +166,7 @@ pub struct VoConfig {
     pub depth_alignment: bool,
     /// After dropped frames, a frame that the depth alignment from the motion model's guess
     /// cannot place either is aligned from a grid of starts around the guess and placed by
-    /// the best-paired result ([`crate::depth_search`]; about 1 s on two cores, once per
+    /// the best-paired result ([`crate::depth_search`]; about 0.4 s on two cores, once per
     /// such gap); and a pose from ORB matches for the first frame after dropped frames is
     /// checked against the frame's depth, which replaces it when they disagree by more
     /// than 5 cm or 3 degrees. Needs `depth_alignment`.

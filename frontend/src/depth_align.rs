@@ -60,7 +60,7 @@ const LEVELS: [Level; 3] = [
 ];
 
 /// Two coarser levels ahead of [`LEVELS`], for a start that may be 0.1-0.2 m and several
-/// degrees from the pose ([`align_wide`]): sparser samples paired within 40, then 20 cm.
+/// degrees from the pose ([`align_coarse`]): sparser samples paired within 40, then 20 cm.
 const WIDE_LEVELS: [Level; 2] = [
     Level {
         stride: 16,
@@ -194,30 +194,34 @@ pub fn align(
     camera: &PinholeCamera,
     params: &DepthAlignParams,
 ) -> Result<DepthAlignment, DepthAlignError> {
-    align_levels(keyframe, current, camera, params, LEVELS)
+    let (world_from_cur, last) = iterate(keyframe, current, camera, params, LEVELS);
+    accept(world_from_cur, &last, params)
 }
 
-/// [`align`] with two coarser levels first (every 16th pixel paired within 40 cm, then
-/// every 8th within 20 cm), so that it reaches the pose from 0.1-0.2 m and several degrees
-/// away: for a search over many starts ([`crate::depth_search`]).
-pub fn align_wide(
+/// Two levels coarser than [`align`]'s, alone and unchecked (every 16th pixel paired within
+/// 40 cm, then every 8th within 20 cm), so that a start 0.1-0.2 m and several degrees from
+/// the pose reaches it: where they leave the frame (`world_from_camera`) and how many of its
+/// samples paired with the keyframe's surface at the last iteration. A search over many
+/// starts ([`crate::depth_search`]) ranks them by it and goes on with [`align`] from there.
+pub fn align_coarse(
     keyframe: &DepthView<'_>,
     current: &DepthView<'_>,
     camera: &PinholeCamera,
     params: &DepthAlignParams,
-) -> Result<DepthAlignment, DepthAlignError> {
-    let levels = WIDE_LEVELS.into_iter().chain(LEVELS);
-    align_levels(keyframe, current, camera, params, levels)
+) -> (Isometry3<f64>, usize) {
+    let (world_from_cur, last) = iterate(keyframe, current, camera, params, WIDE_LEVELS);
+    (world_from_cur, last.pairs)
 }
 
-/// The alignment over `levels`, coarse to fine.
-fn align_levels(
+/// The Gauss-Newton iterations over `levels`, coarse to fine, from
+/// `current.world_from_camera`: the pose reached and the last iteration's system.
+fn iterate(
     keyframe: &DepthView<'_>,
     current: &DepthView<'_>,
     camera: &PinholeCamera,
     params: &DepthAlignParams,
     levels: impl IntoIterator<Item = Level>,
-) -> Result<DepthAlignment, DepthAlignError> {
+) -> (Isometry3<f64>, Normal) {
     let kf_from_world = keyframe.world_from_camera.inverse();
     let mut world_from_cur = current.world_from_camera;
     let mut last = Normal::default();
@@ -253,6 +257,16 @@ fn align_levels(
             }
         }
     }
+    (world_from_cur, last)
+}
+
+/// The pose `world_from_cur` with its last system `last`, or why it is refused (overlap,
+/// residual, conditioning).
+fn accept(
+    world_from_cur: Isometry3<f64>,
+    last: &Normal,
+    params: &DepthAlignParams,
+) -> Result<DepthAlignment, DepthAlignError> {
     let (pairs, samples) = (last.pairs, last.samples);
     if pairs < MIN_PAIRS || (pairs as f64) < params.min_paired_fraction * samples as f64 {
         return Err(DepthAlignError::Overlap { pairs, samples });
