@@ -148,14 +148,14 @@ impl VisualOdometry {
             "frame {}: depth search placed it against keyframe {} ({} of {} samples paired, rms {:.2} sigma)",
             frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas
         );
-        Some(placed_by_depth(&a, kf.id, &kf.world_from_kf))
+        Some(Recovered::by_depth(&a, kf.id, &kf.world_from_kf))
     }
 
     /// Checks `found`, a pose of the first frame after dropped frames from ORB matches,
     /// against the frame's depth: the alignment with the newest keyframe, started at it,
     /// with the search's overlap floor ([`MIN_PAIRED_FRACTION`]). When that is accepted and
     /// moves the pose by more than [`CHECK_MAX_MOVE_M`] or [`CHECK_MAX_TURN_DEG`], the
-    /// depth's pose is returned (without tracks, as [`placed_by_depth`]); `None` when the
+    /// depth's pose is returned (without tracks, as [`Recovered::by_depth`]); `None` when the
     /// depth agrees, is refused, or the search is off. A few dozen ORB inliers between views
     /// 0.5 m and 30 degrees apart can agree on a pose 0.1-0.2 m and 8-14 degrees off, which
     /// thousands of depth samples correct (teddy_200, 2 s dropped at 2.0 and 2.2 s).
@@ -183,26 +183,7 @@ impl VisualOdometry {
             "frame {}: the depth moved its pose from ORB matches by {:.0} mm and {:.1} deg ({} of {} samples paired with keyframe {}); the depth's pose is kept",
             frame.index, move_m * 1e3, turn_deg, a.pairs, a.samples, kf.id
         );
-        Some(placed_by_depth(&a, kf.id, &kf.world_from_kf))
-    }
-}
-
-/// A frame placed by the depth alignment `a` with keyframe `kf_id` (at `world_from_kf`):
-/// no inliers and no tracks (the keyframe it starts detects new corners).
-pub(crate) fn placed_by_depth(
-    a: &DepthAlignment,
-    kf_id: u64,
-    world_from_kf: &Isometry3<f64>,
-) -> Recovered {
-    Recovered {
-        world_from_cur: a.world_from_cur,
-        inliers: 0,
-        iterations: 0,
-        information: a.information,
-        tracks: Vec::new(),
-        matches: 0,
-        matched_keyframe: kf_id,
-        matched_from_cur: world_from_kf.inverse() * a.world_from_cur,
+        Some(Recovered::by_depth(&a, kf.id, &kf.world_from_kf))
     }
 }
 

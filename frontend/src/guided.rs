@@ -13,9 +13,8 @@
 use crate::config::VoConfig;
 use crate::features::hamming;
 use crate::motion::{Correspondence, MotionEstimate};
-use crate::recovery::{
-    estimate_from, keep_best, orb_motion_params, Found, OrbPoint, RecentKeyframe,
-};
+use crate::orb::OrbPoint;
+use crate::recovery::{estimate_from, keep_best, orb_motion_params, Found, RecentKeyframe};
 use crate::relocalize::MIN_INLIERS;
 use nalgebra::Isometry3;
 use std::collections::VecDeque;

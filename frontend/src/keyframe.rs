@@ -6,8 +6,8 @@
 use crate::error::FrontendError;
 use crate::features::Detector;
 use crate::klt::Pyramid;
+use crate::orb::orb_points;
 use crate::points::{measure, Measurement};
-use crate::recovery::orb_points;
 use crate::result::{KeyframeFeature, KeyframeInfo, OdometryLink, PlaceFeature, TrackingStatus};
 use crate::vo::VisualOdometry;
 use nalgebra::{Isometry3, Matrix3, Point2};

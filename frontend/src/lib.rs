@@ -26,6 +26,7 @@ pub mod keyframe;
 pub mod klt;
 pub mod motion;
 mod motion_model;
+pub mod orb;
 pub mod place;
 pub mod points;
 pub mod recovery;

@@ -2,11 +2,12 @@
 //! frames, a jolt, a fast turn) is matched by appearance instead.
 //!
 //! The odometry keeps the last few keyframes' images, depth and poses. When tracking fails
-//! or keeps fewer than `keyframe_min_inliers` inliers, multi-scale ORB features (computed
-//! for a keyframe only the first time it is needed) of the frame and of each recent keyframe
-//! are matched, unguided, since the prediction is what failed: each feature's nearest
-//! descriptor by Hamming distance, kept when close enough ([`MAX_HAMMING`]), clearly better
-//! than the second nearest ([`RATIO`]), and the only one claiming that keyframe feature.
+//! or keeps fewer than `keyframe_min_inliers` inliers, multi-scale ORB features
+//! ([`crate::orb`], computed for a keyframe only the first time it is needed) of the frame
+//! and of each recent keyframe are matched, unguided, since the prediction is what failed:
+//! each feature's nearest descriptor by Hamming distance, kept when close enough
+//! ([`crate::orb::MAX_HAMMING`]), clearly better than the second nearest
+//! ([`crate::orb::RATIO`]), and the only one claiming that keyframe feature.
 //! RANSAC over the 3-D/3-D matches (the tracking's estimator, with more iterations for the
 //! lower inlier ratio) gives the pose against the keyframe with the most inliers, and the
 //! matched points, placed in the world by that keyframe, become the new keyframe's tracks:
@@ -18,38 +19,25 @@
 
 use crate::depth_align::{align, DepthAlignParams, DepthAlignment, DepthView};
 use crate::error::FrontendError;
-use crate::features::{match_descriptors, OrbDescriptor};
+use crate::features::OrbDescriptor;
 use crate::keyframe::{rotate_cov, Track, TrackPoint};
 use crate::klt::Pyramid;
 use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams};
-use crate::points::{measure, Measurement, ShutterMotion};
+use crate::orb::PLACE_LEVELS;
+use crate::orb::{match_points, match_points_within, orb_extractor, orb_points, OrbPoint};
+use crate::points::{Measurement, ShutterMotion};
 use crate::vo::VisualOdometry;
 use crate::VoConfig;
 use crate::{PackedFeature, PlaceFeature};
 use nalgebra::{Isometry3, Matrix6, Point2};
-use opencv::core::{KeyPoint, Mat, Point2f, Ptr, Vector};
-use opencv::features2d::{Feature2DTrait, ORB_ScoreType, ORB};
-use opencv::prelude::*;
+use opencv::core::Ptr;
+use opencv::features2d::ORB;
 use std::collections::VecDeque;
 use std::rc::Rc;
-use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::image::DepthImage;
 use stride_core::rng::SplitMix64;
 
-/// Largest Hamming distance (of 256 bits) of an accepted match: ORB-SLAM's stricter bound.
-pub const MAX_HAMMING: u32 = 50;
-/// A match is kept only when its distance is below this fraction of the second best's.
-pub const RATIO: f64 = 0.8;
-/// ORB features per image: as ORB-SLAM extracts from a VGA frame.
-const ORB_FEATURES: i32 = 1000;
-/// Pyramid levels of the keyframes' place features ([`crate::VoConfig::place_features`]):
-/// four (a 1.7x range of scales) matched loops as well as eight on teddy's pingpong
-/// sequences (1,000 frames, seeds 1-3: ATE 6.65 against 6.84 mm) for less time.
-const PLACE_LEVELS: i32 = 4;
-/// ORB's FAST threshold: lower than the tracking's, for the weakly textured, blurred frames
-/// that recovery most often faces.
-const ORB_FAST_THRESHOLD: i32 = 12;
 /// Kept keyframes are at least this far apart (m) ...
 pub(crate) const SPACING_M: f64 = 0.15;
 /// ... or this rotation apart (rad, 15 degrees), except the newest: a handful of them then
@@ -141,35 +129,6 @@ impl From<Anchor> for AnchorKeyframe {
     }
 }
 
-/// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
-/// camera's frame (m, covariance m^2).
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct OrbPoint {
-    pub(crate) px: Point2f,
-    pub(crate) descriptor: OrbDescriptor,
-    pub(crate) p_camera: Measurement,
-}
-
-impl From<PlaceFeature> for OrbPoint {
-    fn from(f: PlaceFeature) -> Self {
-        Self {
-            px: Point2f::new(f.px.x, f.px.y),
-            descriptor: f.descriptor,
-            p_camera: f.measurement,
-        }
-    }
-}
-
-impl From<&OrbPoint> for PlaceFeature {
-    fn from(o: &OrbPoint) -> Self {
-        Self {
-            px: Point2::new(o.px.x, o.px.y),
-            descriptor: o.descriptor,
-            measurement: o.p_camera,
-        }
-    }
-}
-
 /// A recent keyframe as recovery needs it.
 pub(crate) struct RecentKeyframe {
     /// Its identifier.
@@ -189,22 +148,6 @@ pub(crate) struct RecentKeyframes {
     /// The extractor of keyframes' place features (fewer levels: every keyframe pays for
     /// it).
     pub(crate) place_orb: Ptr<ORB>,
-}
-
-/// OpenCV's ORB as recovery (`levels` 8) and the place features ([`PLACE_LEVELS`]) use
-/// it: the same extractor but for its pyramid's depth.
-fn orb_extractor(levels: i32) -> Result<Ptr<ORB>, FrontendError> {
-    Ok(ORB::create(
-        ORB_FEATURES,
-        1.2,
-        levels,
-        31,
-        0,
-        2,
-        ORB_ScoreType::HARRIS_SCORE,
-        31,
-        ORB_FAST_THRESHOLD,
-    )?)
 }
 
 impl RecentKeyframes {
@@ -251,82 +194,6 @@ impl RecentKeyframes {
     }
 }
 
-/// Place features as a keyframe gets them ([`crate::KeyframeInfo::place_features`]), for
-/// tools that describe images the way relocalization and loop closure see keyframes
-/// (`stride bench place`).
-pub struct PlaceExtractor {
-    orb: Ptr<ORB>,
-}
-
-impl PlaceExtractor {
-    /// The extractor the odometry uses for keyframes.
-    pub fn new() -> Result<Self, FrontendError> {
-        Ok(Self {
-            orb: orb_extractor(PLACE_LEVELS)?,
-        })
-    }
-
-    /// The ORB descriptors of `gray`'s place features: those with a depth in `depth_m`
-    /// that `config`'s range and edge test accept (a still camera, `camera` the image's).
-    pub fn descriptors(
-        &mut self,
-        gray: &Mat,
-        depth_m: &DepthImage,
-        camera: &PinholeCamera,
-        config: &VoConfig,
-    ) -> Result<Vec<OrbDescriptor>, FrontendError> {
-        let still = ShutterMotion::default();
-        let points = orb_points(&mut self.orb, gray, depth_m, camera, &still, config)?;
-        Ok(points.iter().map(|p| p.descriptor).collect())
-    }
-}
-
-/// ORB points of a grey image with depth.
-pub(crate) fn orb_points(
-    orb: &mut Ptr<ORB>,
-    gray: &Mat,
-    depth_m: &DepthImage,
-    camera: &PinholeCamera,
-    shutter: &ShutterMotion,
-    config: &VoConfig,
-) -> Result<Vec<OrbPoint>, FrontendError> {
-    {
-        let mut kps = Vector::<KeyPoint>::new();
-        let mut desc = Mat::default();
-        orb.detect_and_compute(gray, &opencv::core::no_array(), &mut kps, &mut desc, false)?;
-        let mut out = Vec::with_capacity(kps.len());
-        for (row, k) in kps.iter().enumerate() {
-            let px = k.pt();
-            let (Ok(bytes), Some(p_camera)) = (
-                desc.at_row::<u8>(row as i32),
-                measure(depth_m, camera, (px.x, px.y), shutter, config),
-            ) else {
-                continue;
-            };
-            if let Ok(descriptor) = <OrbDescriptor>::try_from(bytes) {
-                out.push(OrbPoint {
-                    px,
-                    descriptor,
-                    p_camera,
-                });
-            }
-        }
-        Ok(out)
-    }
-}
-
-/// Accepted matches `(query, reference)` between two sets of ORB points
-/// ([`match_descriptors`] with [`MAX_HAMMING`] and [`RATIO`]).
-pub(crate) fn match_points(query: &[OrbPoint], reference: &[OrbPoint]) -> Vec<(usize, usize)> {
-    match_points_within(query, reference, (MAX_HAMMING, RATIO))
-}
-
-/// [`match_points`] with the bounds `(max_hamming, ratio)` given.
-fn match_points_within(q: &[OrbPoint], r: &[OrbPoint], bounds: (u32, f64)) -> Vec<(usize, usize)> {
-    let descriptors = |p: &[OrbPoint]| p.iter().map(|o| o.descriptor).collect::<Vec<_>>();
-    match_descriptors(&descriptors(q), &descriptors(r), bounds.0, bounds.1)
-}
-
 /// A pose found by recovery.
 #[derive(Debug)]
 pub(crate) struct Recovered {
@@ -345,6 +212,23 @@ pub(crate) struct Recovered {
     /// The frame's pose in that keyframe's camera frame (what was measured: the keyframe
     /// was placed in the world by the odometry when it was kept, with the drift of then).
     pub(crate) matched_from_cur: Isometry3<f64>,
+}
+
+impl Recovered {
+    /// A frame placed by the depth alignment `a` with keyframe `kf_id` (at `world_from_kf`):
+    /// no inliers and no tracks (the keyframe it starts detects new corners).
+    pub(crate) fn by_depth(a: &DepthAlignment, kf_id: u64, world_from_kf: &Isometry3<f64>) -> Self {
+        Self {
+            world_from_cur: a.world_from_cur,
+            inliers: 0,
+            iterations: 0,
+            information: a.information,
+            tracks: Vec::new(),
+            matches: 0,
+            matched_keyframe: kf_id,
+            matched_from_cur: world_from_kf.inverse() * a.world_from_cur,
+        }
+    }
 }
 
 /// The pose of a frame against one reference keyframe: the matches of `query` with the
@@ -431,9 +315,10 @@ pub(crate) fn keep_best(best: &mut Option<Found>, candidate: Option<Found>) {
 
 impl VisualOdometry {
     /// Looks for the current frame's pose by matching its ORB features against the recent
-    /// keyframes' within `bounds` (`(max_hamming, ratio)`; usually [`MAX_HAMMING`] and
-    /// [`RATIO`]); when none gives enough inliers and `guided` is given, near the rough
-    /// poses that at least that many inliers give (`crate::guided`). `None` when recovery
+    /// keyframes' within `bounds` (`(max_hamming, ratio)`; usually
+    /// [`crate::orb::MAX_HAMMING`] and [`crate::orb::RATIO`]); when none gives enough
+    /// inliers and `guided` is given, near the rough poses that at least that many inliers
+    /// give (`crate::guided`). `None` when recovery
     /// is off or no keyframe gives more than `at_least` (and `recovery_min_inliers`)
     /// inliers. The caller must start the new tracks' keyframe (`kf_count`).
     pub(crate) fn recover(
@@ -507,11 +392,7 @@ impl VisualOdometry {
             "frame {}: depth aligned with keyframe {} ({} of {} samples paired, rms {:.2} sigma, condition {:.1e})",
             frame.index, kf.id, a.pairs, a.samples, a.rms_sigmas, a.condition
         );
-        Some(crate::depth_search::placed_by_depth(
-            &a,
-            kf.id,
-            &kf.world_from_kf,
-        ))
+        Some(Recovered::by_depth(&a, kf.id, &kf.world_from_kf))
     }
 
     /// Aligns `frame`'s depth with recent keyframe `kf`'s ([`crate::depth_align`]): the

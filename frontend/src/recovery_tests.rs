@@ -2,6 +2,7 @@
 
 use super::*;
 use nalgebra::{Matrix3, Point3};
+use opencv::core::Point2f;
 
 /// A point whose descriptor has the first `ones` bits set.
 fn point(ones: usize) -> OrbPoint {

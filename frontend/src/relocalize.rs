@@ -32,10 +32,11 @@ use crate::error::FrontendError;
 use crate::features::OrbDescriptor;
 use crate::klt::Pyramid;
 use crate::motion::{ransac, Correspondence, MotionParams};
+use crate::orb::{match_points, orb_points, OrbPoint, MAX_HAMMING, RATIO};
 use crate::points::{measure, ShutterMotion};
 use crate::recovery::{
-    estimate_against, keep_best, match_points, orb_motion_params, orb_points, Anchor,
-    AnchorKeyframe, OrbPoint, Recovered, MAX_HAMMING, RATIO, SPACING_M, SPACING_RAD,
+    estimate_against, keep_best, orb_motion_params, Anchor, AnchorKeyframe, Recovered, SPACING_M,
+    SPACING_RAD,
 };
 use crate::result::{OdometryLink, PackedFeature, TrackingStatus};
 use crate::vo::VisualOdometry;

@@ -10,8 +10,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 use stride_datasets::tum::{AssociationOptions, TumSequence};
 use stride_frontend::features::{gray_mat, match_descriptors, OrbDescriptor};
+use stride_frontend::orb::{PlaceExtractor, MAX_HAMMING, RATIO};
 use stride_frontend::place::{BowVector, PlaceDatabase, Vocabulary};
-use stride_frontend::recovery::{PlaceExtractor, MAX_HAMMING, RATIO};
 use stride_frontend::VoConfig;
 
 #[derive(Debug, Args)]
