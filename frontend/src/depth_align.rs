@@ -110,6 +110,10 @@ pub struct DepthAlignment {
     pub pairs: usize,
     /// Samples at the finest level (pixels with depth).
     pub samples: usize,
+    /// Samples at the finest level that land on the keyframe's surface (inside its image,
+    /// on a depth, off its depth edges), paired or not: `pairs` is close to it when the
+    /// views agree wherever they overlap, however little that is.
+    pub on_surface: usize,
     /// Weighted RMS residual at the finest level (standard deviations of the depth noise).
     pub rms_sigmas: f64,
     /// Smallest eigenvalue of the normalised information relative to the largest.
@@ -130,6 +134,7 @@ pub enum DepthAlignError {
         /// Samples with depth.
         samples: usize,
     },
+
     /// The surfaces do not agree after the alignment.
     #[error("residual {rms_sigmas:.2} standard deviations after alignment")]
     Residual {
@@ -271,6 +276,7 @@ fn accept(
     if pairs < MIN_PAIRS || (pairs as f64) < params.min_paired_fraction * samples as f64 {
         return Err(DepthAlignError::Overlap { pairs, samples });
     }
+
     let rms_sigmas = (last.cost / pairs as f64).sqrt();
     if rms_sigmas > MAX_RMS_SIGMAS {
         return Err(DepthAlignError::Residual { rms_sigmas });
@@ -283,6 +289,7 @@ fn accept(
         world_from_cur,
         pairs,
         samples,
+        on_surface: last.on_surface,
         rms_sigmas,
         condition,
         information: at_origin(&last.h, &world_from_cur.translation.vector) * INFORMATION_SHARE,
@@ -318,6 +325,8 @@ struct Normal {
     cost: f64,
     pairs: usize,
     samples: usize,
+    /// Samples that found the keyframe's surface where they project, paired or not.
+    on_surface: usize,
 }
 
 /// Pairs every sample with the keyframe's surface under `world_from_cur` and sums the
@@ -343,6 +352,7 @@ fn normal_equations(
         let Some((q_kf, normal_kf)) = surface(keyframe.depth_m, camera, &p_kf, params) else {
             continue;
         };
+        n.on_surface += 1;
         let q_world = world_from_kf * q_kf;
         let normal = world_from_kf.rotation * normal_kf;
         let diff = p_world - q_world;
@@ -453,134 +463,5 @@ fn condition(h: &Matrix6<f64>) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    #![allow(clippy::unwrap_used, clippy::expect_used)]
-    use super::*;
-
-    /// The plane `normal . p = offset_m` (world frame, m).
-    fn plane(normal: Vector3<f64>, offset_m: f64) -> Plane {
-        Plane {
-            normal: Unit::new_normalize(normal),
-            offset_m,
-        }
-    }
-
-    fn camera() -> PinholeCamera {
-        PinholeCamera::new(262.5, 262.5, 159.5, 119.5, 320, 240).unwrap()
-    }
-
-    /// The depth image a camera at `world_from_camera` sees of `planes` (the nearest hit
-    /// along each pixel's ray; 0 where none is hit within 8 m).
-    fn render(planes: &[Plane], world_from_camera: &Isometry3<f64>) -> DepthImage {
-        let cam = camera();
-        let mut depth = DepthImage::filled(cam.width(), cam.height(), 0.0);
-        for v in 0..cam.height() {
-            for u in 0..cam.width() {
-                // The ray through the pixel, scaled to unit depth.
-                let ray = cam.unproject(&Point2::new(f64::from(u), f64::from(v)), 1.0);
-                let origin = world_from_camera.translation.vector;
-                let dir = world_from_camera.rotation * ray.coords;
-                let nearest = planes
-                    .iter()
-                    .filter_map(|p| {
-                        let t = (p.offset_m - p.normal.dot(&origin)) / p.normal.dot(&dir);
-                        (t.is_finite() && t > 0.0 && t < 8.0).then_some(t)
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                if nearest.is_finite() {
-                    *depth.get_mut(u, v).unwrap() = nearest as f32;
-                }
-            }
-        }
-        depth
-    }
-
-    fn params() -> DepthAlignParams {
-        DepthAlignParams {
-            min_depth_m: 0.3,
-            max_depth_m: 6.0,
-            depth_edge_rel: 0.04,
-            noise: PrimeSenseModel::default(),
-            min_paired_fraction: MIN_PAIRED_FRACTION,
-        }
-    }
-
-    /// A room corner ahead of the camera: a floor 1 m below it (y down), a back wall 3 m
-    /// ahead and a side wall 1.2 m to the right; three normals fix every direction.
-    fn corner() -> Vec<Plane> {
-        vec![
-            plane(Vector3::y(), 1.0),
-            plane(Vector3::z(), 3.0),
-            plane(Vector3::new(1.0, 0.0, 0.2), 1.2),
-        ]
-    }
-
-    /// [`align`] of `current` against `keyframe` (at the origin), from the origin.
-    fn align_from_origin(
-        keyframe: &DepthImage,
-        current: &DepthImage,
-    ) -> Result<DepthAlignment, DepthAlignError> {
-        let view = |depth_m| DepthView {
-            depth_m,
-            world_from_camera: Isometry3::identity(),
-        };
-        align(&view(keyframe), &view(current), &camera(), &params())
-    }
-
-    fn moved() -> Isometry3<f64> {
-        Isometry3::from_parts(
-            Translation3::new(0.03, -0.01, 0.05),
-            UnitQuaternion::from_euler_angles(0.02, -0.035, 0.01),
-        )
-    }
-
-    #[test]
-    fn a_frame_is_placed_from_a_prediction_centimetres_and_degrees_off() {
-        let planes = corner();
-        let kf_depth = render(&planes, &Isometry3::identity());
-        let truth = moved();
-        let cur_depth = render(&planes, &truth);
-        // From where the keyframe was: the prediction is 6 cm and 2.4 degrees off.
-        let a = align_from_origin(&kf_depth, &cur_depth).unwrap();
-        let err = truth.inverse() * a.world_from_cur;
-        assert!(
-            err.translation.vector.norm() < 1e-3 && err.rotation.angle().to_degrees() < 0.05,
-            "error {:?} ({} pairs, rms {}, condition {})",
-            err,
-            a.pairs,
-            a.rms_sigmas,
-            a.condition
-        );
-        assert!(a.rms_sigmas < 0.5, "{}", a.rms_sigmas);
-        // The information is symmetric, positive definite and in the world's convention.
-        assert!((a.information - a.information.transpose()).norm() < 1e-6 * a.information.norm());
-        assert!(a.information.cholesky().is_some());
-    }
-
-    #[test]
-    fn geometry_that_leaves_a_direction_free_is_refused() {
-        // Floor and back wall only: sliding sideways (along both) changes nothing.
-        let planes = vec![plane(Vector3::y(), 1.0), plane(Vector3::z(), 3.0)];
-        let kf_depth = render(&planes, &Isometry3::identity());
-        let cur_depth = render(&planes, &moved());
-        let e = align_from_origin(&kf_depth, &cur_depth).unwrap_err();
-        assert!(matches!(e, DepthAlignError::Degenerate { .. }), "{e}");
-    }
-
-    #[test]
-    fn a_frame_that_does_not_overlap_the_keyframe_is_refused() {
-        let planes = corner();
-        let kf_depth = render(&planes, &Isometry3::identity());
-        // Turned 120 degrees away: it sees other walls (none here) than the keyframe did.
-        let away = Isometry3::from_parts(
-            Translation3::new(0.0, 0.0, 0.0),
-            UnitQuaternion::from_euler_angles(0.0, 2.1, 0.0),
-        );
-        let cur_depth = render(
-            &[plane(Vector3::y(), 1.0), plane(-Vector3::z(), 3.0)],
-            &away,
-        );
-        let e = align_from_origin(&kf_depth, &cur_depth);
-        assert!(e.is_err(), "{e:?}");
-    }
-}
+#[path = "depth_align_tests.rs"]
+mod tests;

@@ -10,8 +10,10 @@
 //! about the camera's vertical axis by up to [`MAX_TURN_DEG`] in steps of [`TURN_STEP_DEG`],
 //! moved sideways and along the view by up to [`MAX_MOVE_M`] in steps of [`MOVE_STEP_M`].
 //! Every start runs the coarse levels; the [`REFINED_STARTS`] that paired most samples there
-//! go on through the fine ones. Of those that converge and pass the alignment's own checks,
-//! the one with the most samples paired wins (the first in the grid's order among equals).
+//! go on through the fine ones. Of those that converge, pass the alignment's own checks and
+//! pair enough samples ([`accepted`]: a fifth of them, or a tenth and most of those that
+//! land on the keyframe's surface), the one with the most samples paired wins (the first
+//! in the grid's order among equals).
 //! The grid is fixed and
 //! the starts run in parallel with their results kept in order, so the result is repeatable
 //! whatever the thread count.
@@ -35,8 +37,18 @@ pub const MAX_MOVE_M: f64 = 0.4;
 /// Step between the starts' moves (m).
 pub const MOVE_STEP_M: f64 = 0.2;
 /// Fewest samples paired with the keyframe's surface, as a fraction of the samples with
-/// depth (across teddy_200's 2 s gaps the true pose pairs 23-29 %, a wrong one 19 %).
+/// depth, for a result to be taken on its overlap alone (across teddy_200's 2 s gaps the
+/// true pose pairs 20-29 %, a wrong one 19 %).
 pub const MIN_PAIRED_FRACTION: f64 = 0.2;
+/// The least overlap of a result taken for its consistency ([`MIN_PAIRED_ON_SURFACE`]):
+/// after a fast stretch the views share less than [`MIN_PAIRED_FRACTION`] of the samples,
+/// and a true pose still pairs most of those that land on the keyframe's surface.
+pub const LOW_OVERLAP_MIN_FRACTION: f64 = 0.1;
+/// Fewest samples paired, as a fraction of those that land on the keyframe's surface
+/// (`DepthAlignment::on_surface`), for a result of low overlap. On teddy_200's 2 s gaps
+/// the true poses paired 32-50 % of them (18-29 % of all samples), the wrong ones found
+/// 11-22 % (7-14 % of all): a wrong pose lands many samples on the surface, far from it.
+pub const MIN_PAIRED_ON_SURFACE: f64 = 0.3;
 /// How far (m) the depth alignment started at a pose from ORB matches may move it before
 /// the depth's pose replaces it (`VisualOdometry::checked_by_depth`). Across teddy_200's
 /// 2 s gaps the alignment lands 5-19 mm from the ground truth, so a correct ORB pose moves
@@ -51,6 +63,25 @@ pub const CHECK_MAX_TURN_DEG: f64 = 3.0;
 /// first few: with 4, 8, 16 or 32 of them kept, teddy_200's searched gaps (21 runs) end
 /// within 0.2 mm of ATE of the run that refines all 225, in about a third of its time.
 pub const REFINED_STARTS: usize = 8;
+
+/// The alignment's settings for the search and the check: the odometry's, with the least
+/// overlap a result may have ([`LOW_OVERLAP_MIN_FRACTION`]; [`accepted`] asks more).
+fn search_params(config: &crate::VoConfig) -> DepthAlignParams {
+    DepthAlignParams {
+        min_paired_fraction: LOW_OVERLAP_MIN_FRACTION,
+        ..DepthAlignParams::from_config(config)
+    }
+}
+
+/// Whether the search (or the check) takes an alignment that passed its own checks: one
+/// that pairs [`MIN_PAIRED_FRACTION`] of its samples, or [`LOW_OVERLAP_MIN_FRACTION`] of
+/// them and [`MIN_PAIRED_ON_SURFACE`] of those that land on the keyframe's surface.
+pub fn accepted(a: &DepthAlignment) -> bool {
+    let pairs = a.pairs as f64;
+    pairs >= MIN_PAIRED_FRACTION * a.samples as f64
+        || (pairs >= LOW_OVERLAP_MIN_FRACTION * a.samples as f64
+            && pairs >= MIN_PAIRED_ON_SURFACE * a.on_surface as f64)
+}
 
 /// The starts around `guess` (`world_from_camera`): the guess moved in its own camera frame
 /// by `(dx, 0, dz)` and turned about its y axis (the camera's vertical).
@@ -74,7 +105,8 @@ pub fn starts(guess: &Isometry3<f64>) -> Vec<Isometry3<f64>> {
 }
 
 /// The best-paired of the alignments of `current` with `keyframe` from [`starts`] around
-/// `current.world_from_camera`, if any passes the alignment's checks with `params`: every
+/// `current.world_from_camera`, if any passes the alignment's checks with `params` and is
+/// [`accepted`]: every
 /// start through the coarse levels ([`align_coarse`]), the [`REFINED_STARTS`] that paired
 /// most samples there on through the fine ones ([`align`]).
 pub fn best_of_starts(
@@ -103,7 +135,10 @@ pub fn best_of_starts(
     coarse.sort_by_key(|c| c.0);
     let aligned: Vec<Option<DepthAlignment>> = coarse
         .into_par_iter()
-        .map(|(_, pose, _)| align(keyframe, &view(pose), camera, params).ok())
+        .map(|(_, pose, _)| {
+            let a = align(keyframe, &view(pose), camera, params).ok();
+            a.filter(accepted)
+        })
         .collect();
     aligned
         .into_iter()
@@ -127,8 +162,7 @@ impl VisualOdometry {
             return None;
         }
         let kf = self.recent.keyframes.back()?;
-        let mut params = DepthAlignParams::from_config(&self.config);
-        params.min_paired_fraction = MIN_PAIRED_FRACTION;
+        let params = search_params(&self.config);
         let keyframe = DepthView {
             depth_m: &kf.depth_m,
             world_from_camera: kf.world_from_kf,
@@ -153,7 +187,7 @@ impl VisualOdometry {
 
     /// Checks `found`, a pose of the first frame after dropped frames from ORB matches,
     /// against the frame's depth: the alignment with the newest keyframe, started at it,
-    /// with the search's overlap floor ([`MIN_PAIRED_FRACTION`]). When that is accepted and
+    /// taken as the search takes its results ([`accepted`]). When that is accepted and
     /// moves the pose by more than [`CHECK_MAX_MOVE_M`] or [`CHECK_MAX_TURN_DEG`], the
     /// depth's pose is returned (without tracks, as [`Recovered::by_depth`]); `None` when the
     /// depth agrees, is refused, or the search is off. A few dozen ORB inliers between views
@@ -168,9 +202,11 @@ impl VisualOdometry {
             return None;
         }
         let kf = self.recent.keyframes.back()?;
-        let mut params = DepthAlignParams::from_config(&self.config);
-        params.min_paired_fraction = MIN_PAIRED_FRACTION;
+        let params = search_params(&self.config);
         let a = self.align_with(frame, kf, kf.world_from_kf, found.world_from_cur, &params)?;
+        if !accepted(&a) {
+            return None;
+        }
         let moved = found.world_from_cur.inverse() * a.world_from_cur;
         let (move_m, turn_deg) = (
             moved.translation.vector.norm(),
@@ -190,6 +226,26 @@ impl VisualOdometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_small_overlap_is_taken_only_where_it_agrees() {
+        let result = |pairs, on_surface| DepthAlignment {
+            world_from_cur: Isometry3::identity(),
+            pairs,
+            samples: 10_000,
+            on_surface,
+            rms_sigmas: 0.3,
+            condition: 3e-3,
+            information: nalgebra::Matrix6::identity(),
+        };
+        // A fifth of the samples: taken on its overlap alone.
+        assert!(accepted(&result(2_000, 9_000)));
+        // Less: taken when most of what lands on the keyframe's surface lies on it.
+        assert!(accepted(&result(1_500, 4_000)));
+        assert!(!accepted(&result(1_500, 8_000)));
+        // Under a tenth: never.
+        assert!(!accepted(&result(900, 1_000)));
+    }
 
     #[test]
     fn the_grid_surrounds_the_guess_and_holds_it() {
