@@ -98,6 +98,14 @@ fn a_frame_is_placed_from_a_prediction_centimetres_and_degrees_off() {
         a.condition
     );
     assert!(a.rms_sigmas < 0.5, "{}", a.rms_sigmas);
+    // Where the views agree, nearly every sample that lands on the keyframe's surface
+    // lies on it.
+    assert!(
+        a.on_surface >= a.pairs && a.pairs as f64 >= 0.95 * a.on_surface as f64,
+        "{} of {} on the surface",
+        a.pairs,
+        a.on_surface
+    );
     // The information is symmetric, positive definite and in the world's convention.
     assert!((a.information - a.information.transpose()).norm() < 1e-6 * a.information.norm());
     assert!(a.information.cholesky().is_some());

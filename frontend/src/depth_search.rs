@@ -11,12 +11,10 @@
 //! moved sideways and along the view by up to [`MAX_MOVE_M`] in steps of [`MOVE_STEP_M`].
 //! Every start runs the coarse levels; the [`REFINED_STARTS`] that paired most samples there
 //! go on through the fine ones. Of those that converge, pass the alignment's own checks and
-//! pair enough samples ([`accepted`]: a fifth of them, or a tenth and most of those that
+//! pair enough samples ([`accepted`]: a fifth of them, or a tenth and 30 % of those that
 //! land on the keyframe's surface), the one with the most samples paired wins (the first
-//! in the grid's order among equals).
-//! The grid is fixed and
-//! the starts run in parallel with their results kept in order, so the result is repeatable
-//! whatever the thread count.
+//! in the grid's order among equals). The grid is fixed and the starts run in parallel
+//! with their results kept in order, so the result is repeatable whatever the thread count.
 //!
 //! The same depth checks a pose that ORB matches give such a frame
 //! (`VisualOdometry::checked_by_depth`): a few dozen matches between views half a metre
@@ -37,25 +35,26 @@ pub const MAX_MOVE_M: f64 = 0.4;
 /// Step between the starts' moves (m).
 pub const MOVE_STEP_M: f64 = 0.2;
 /// Fewest samples paired with the keyframe's surface, as a fraction of the samples with
-/// depth, for a result to be taken on its overlap alone (across teddy_200's 2 s gaps the
-/// true pose pairs 20-29 %, a wrong one 19 %).
+/// depth, for a result to be taken on its overlap alone (across teddy_200's gaps the poses
+/// taken pair 20-32 %, a wrong one from the last frame's pose paired 19 %).
 pub const MIN_PAIRED_FRACTION: f64 = 0.2;
 /// The least overlap of a result taken for its consistency ([`MIN_PAIRED_ON_SURFACE`]):
 /// after a fast stretch the views share less than [`MIN_PAIRED_FRACTION`] of the samples,
-/// and a true pose still pairs most of those that land on the keyframe's surface.
+/// and a true pose still pairs a good share of those that land on the keyframe's surface.
 pub const LOW_OVERLAP_MIN_FRACTION: f64 = 0.1;
 /// Fewest samples paired, as a fraction of those that land on the keyframe's surface
-/// (`DepthAlignment::on_surface`), for a result of low overlap. On teddy_200's 2 s gaps
-/// the true poses paired 32-50 % of them (18-29 % of all samples), the wrong ones found
-/// 11-22 % (7-14 % of all): a wrong pose lands many samples on the surface, far from it.
+/// (`DepthAlignment::on_surface`), for a result of low overlap. On teddy_200's gaps the
+/// poses the search and the check took paired 32-54 % of them (20-32 % of all samples),
+/// the wrong or unconverged results 11-22 % (7-14 % of all): a wrong pose lands many
+/// samples on the surface, far from it.
 pub const MIN_PAIRED_ON_SURFACE: f64 = 0.3;
 /// How far (m) the depth alignment started at a pose from ORB matches may move it before
 /// the depth's pose replaces it (`VisualOdometry::checked_by_depth`). Across teddy_200's
 /// 2 s gaps the alignment lands 5-19 mm from the ground truth, so a correct ORB pose moves
-/// less; the wrong ones seen moved 120-210 mm.
+/// less; the wrong ones seen moved 58-213 mm.
 pub const CHECK_MAX_MOVE_M: f64 = 0.05;
 /// The turn (degrees) that [`CHECK_MAX_MOVE_M`] allows: the alignment lands within 0.3-2
-/// degrees of the truth there; the wrong ORB poses seen were 8-14 degrees off.
+/// degrees of the truth there; the wrong ORB poses seen moved 3.5-14 degrees.
 pub const CHECK_MAX_TURN_DEG: f64 = 3.0;
 
 /// How many starts go on to the fine levels: those whose coarse levels paired most samples.
@@ -106,9 +105,8 @@ pub fn starts(guess: &Isometry3<f64>) -> Vec<Isometry3<f64>> {
 
 /// The best-paired of the alignments of `current` with `keyframe` from [`starts`] around
 /// `current.world_from_camera`, if any passes the alignment's checks with `params` and is
-/// [`accepted`]: every
-/// start through the coarse levels ([`align_coarse`]), the [`REFINED_STARTS`] that paired
-/// most samples there on through the fine ones ([`align`]).
+/// [`accepted`]: every start through the coarse levels ([`align_coarse`]), the
+/// [`REFINED_STARTS`] that paired most samples there on through the fine ones ([`align`]).
 pub fn best_of_starts(
     keyframe: &DepthView<'_>,
     current: &DepthView<'_>,
@@ -152,7 +150,7 @@ pub fn best_of_starts(
 impl VisualOdometry {
     /// Places the first frame after dropped frames by its depth from many starts around
     /// `world_from_pred` (see the module documentation); `None` when the search or depth
-    /// alignment is off, no keyframe's depth is kept, or no start converges.
+    /// alignment is off, no keyframe's depth is kept, or no start converges to an accepted result.
     pub(crate) fn search_depth(
         &mut self,
         frame: &RgbdFrame,
