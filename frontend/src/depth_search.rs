@@ -18,10 +18,14 @@
 //!
 //! The same depth checks a pose that ORB matches give such a frame
 //! (`VisualOdometry::checked_by_depth`): a few dozen matches between views half a metre
-//! apart can agree on a wrong pose, and the alignment started there corrects it.
+//! apart can agree on a wrong pose, and the alignment started there corrects it; the
+//! matches that hold at the corrected pose stay as tracks.
 
 use crate::depth_align::{align, align_coarse, DepthAlignParams, DepthAlignment, DepthView};
-use crate::recovery::Recovered;
+use crate::keyframe::Track;
+use crate::motion::{is_inlier, Correspondence};
+use crate::points::Measurement;
+use crate::recovery::{orb_motion_params, Recovered};
 use crate::vo::VisualOdometry;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use stride_core::frame::RgbdFrame;
@@ -187,8 +191,9 @@ impl VisualOdometry {
     /// against the frame's depth: the alignment with the newest keyframe, started at it,
     /// taken as the search takes its results ([`accepted`]). When that is accepted and
     /// moves the pose by more than [`CHECK_MAX_MOVE_M`] or [`CHECK_MAX_TURN_DEG`], the
-    /// depth's pose is returned (without tracks, as [`Recovered::by_depth`]); `None` when the
-    /// depth agrees, is refused, or the search is off. A few dozen ORB inliers between views
+    /// depth's pose is returned ([`Recovered::by_depth`]), with those of `found`'s tracks
+    /// whose matches are still inliers there as its tracks; `None` when the depth agrees,
+    /// is refused, or the search is off. A few dozen ORB inliers between views
     /// 0.5 m and 30 degrees apart can agree on a pose 0.1-0.2 m and 8-14 degrees off, which
     /// thousands of depth samples correct (teddy_200, 2 s dropped at 2.0 and 2.2 s).
     pub(crate) fn checked_by_depth(
@@ -213,11 +218,27 @@ impl VisualOdometry {
         if move_m <= CHECK_MAX_MOVE_M && turn_deg <= CHECK_MAX_TURN_DEG {
             return None;
         }
+        // The matches that still hold at the depth's pose stay as tracks, as recovery's do:
+        // the frames after the gap go on tracking the points seen before it.
+        let mut placed = Recovered::by_depth(&a, kf.id, &kf.world_from_kf);
+        let orb = orb_motion_params(&self.config, 0);
+        let holds = |(track, current): &&(Track, Option<Measurement>)| match (&track.point, current)
+        {
+            (Some(point), Some(current)) => {
+                let c = Correspondence {
+                    reference: point.world,
+                    current: *current,
+                };
+                is_inlier(&c, &a.world_from_cur, orb.test, orb.model_noise_m)
+            }
+            _ => false,
+        };
+        placed.tracks = found.tracks.iter().filter(holds).cloned().collect();
         tracing::debug!(
-            "frame {}: the depth moved its pose from ORB matches by {:.0} mm and {:.1} deg ({} of {} samples paired with keyframe {}); the depth's pose is kept",
-            frame.index, move_m * 1e3, turn_deg, a.pairs, a.samples, kf.id
+            "frame {}: the depth moved its pose from ORB matches by {:.0} mm and {:.1} deg ({} of {} samples paired with keyframe {}); the depth's pose is kept, with {} of the {} matches",
+            frame.index, move_m * 1e3, turn_deg, a.pairs, a.samples, kf.id, placed.tracks.len(), found.tracks.len()
         );
-        Some(Recovered::by_depth(&a, kf.id, &kf.world_from_kf))
+        Some(placed)
     }
 }
 
