@@ -30,6 +30,7 @@ pub(crate) const PLACE_LEVELS: i32 = 4;
 /// ORB's FAST threshold: lower than the tracking's, for the weakly textured, blurred frames
 /// that recovery most often faces.
 const ORB_FAST_THRESHOLD: i32 = 12;
+
 /// An ORB feature with a depth measurement: its pixel, descriptor and 3-D point in its
 /// camera's frame (m, covariance m^2).
 #[derive(Debug, Clone, Copy)]

@@ -23,8 +23,9 @@ use crate::features::OrbDescriptor;
 use crate::keyframe::{rotate_cov, Track, TrackPoint};
 use crate::klt::Pyramid;
 use crate::motion::{polish, ransac, Correspondence, MotionEstimate, MotionParams};
-use crate::orb::PLACE_LEVELS;
-use crate::orb::{match_points, match_points_within, orb_extractor, orb_points, OrbPoint};
+use crate::orb::{
+    match_points, match_points_within, orb_extractor, orb_points, OrbPoint, PLACE_LEVELS,
+};
 use crate::points::{Measurement, ShutterMotion};
 use crate::vo::VisualOdometry;
 use crate::VoConfig;

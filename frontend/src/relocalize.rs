@@ -315,8 +315,9 @@ impl VisualOdometry {
     /// A pose from ORB matches (`found`, with the status it earns) held to `gyroscope`
     /// ([`Self::held_to_gyroscope`]) and, for the first frame after dropped frames
     /// (`across_gap`), checked against the frame's depth
-    /// ([`VisualOdometry::checked_by_depth`]): the depth's pose, if it moves the pose
-    /// too far and the gyroscope does not disagree with it, with status `DepthAligned`.
+    /// ([`VisualOdometry::checked_by_depth`]): the depth's pose (with the matches that hold
+    /// there as tracks), if it moves the pose too far and the gyroscope does not disagree
+    /// with it, with status `DepthAligned`.
     fn checked_orb_pose(
         &mut self,
         frame: &RgbdFrame,
