@@ -156,7 +156,7 @@ impl VisualOdometry {
     /// `world_from_pred` (see the module documentation); `None` when the search or depth
     /// alignment is off, no keyframe's depth is kept, or no start converges to an accepted result.
     pub(crate) fn search_depth(
-        &mut self,
+        &self,
         frame: &RgbdFrame,
         world_from_pred: &Isometry3<f64>,
     ) -> Option<Recovered> {
@@ -175,7 +175,7 @@ impl VisualOdometry {
         };
         let Some(a) = best_of_starts(&keyframe, &current, &self.camera, &params) else {
             tracing::debug!(
-                "frame {}: no start of the depth search converged",
+                "frame {}: no start of the depth search converged to an accepted pose",
                 frame.index
             );
             return None;
