@@ -52,9 +52,9 @@ pub struct KeyframeReport {
     pub new_points: usize,
     /// Whether the odometry link joined the optimization (too few re-observations).
     pub odometry_edge: bool,
-    /// Whether the odometry's depth link ([`stride_frontend::DepthLink`]) joined the map's
-    /// constraints.
-    pub depth_edge: bool,
+    /// How many of the odometry's depth links ([`stride_frontend::DepthLink`]) joined the
+    /// map's constraints.
+    pub depth_edges: usize,
     /// Whether a revisit link ([`crate::RevisitConfig`]) tied the keyframe to an old one.
     pub revisit_edge: bool,
     /// Observations removed as outliers after optimizing.
@@ -164,23 +164,18 @@ fn odometry_information(
 }
 
 impl Backend {
-    /// Adds keyframe `id`'s depth link as a pose-pose edge from the previous keyframe (or
+    /// Adds keyframe `id`'s depth link `l` as a pose-pose edge from the earlier keyframe (or
     /// the live keyframe that one is kept relative to); whether it was added.
-    fn add_depth_edge(
-        &mut self,
-        id: KeyframeId,
-        link: Option<&stride_frontend::DepthLink>,
-    ) -> bool {
-        let Some(l) = link else { return false };
-        let Some((previous, live_from_previous)) = self.map.live_ancestor(l.previous_id) else {
+    fn add_depth_edge(&mut self, id: KeyframeId, l: &stride_frontend::DepthLink) -> bool {
+        let Some((previous, live_from_previous)) = self.map.live_ancestor(l.keyframe_id) else {
             return false;
         };
         // A right perturbation of the keyframe's pose does not depend on the frame the
         // link starts from: the link's tangent information holds after composing.
         self.add_measured_edge(
             (previous, id, EdgeKind::Odometry),
-            live_from_previous * l.previous_from_this,
-            &l.previous_from_this,
+            live_from_previous * l.keyframe_from_this,
+            &l.keyframe_from_this,
             &l.information,
         )
     }
@@ -384,7 +379,7 @@ impl Backend {
             fused: 0,
             new_points: 0,
             odometry_edge: false,
-            depth_edge: false,
+            depth_edges: 0,
             revisit_edge: false,
             outliers: 0,
             culled_points: 0,
@@ -394,8 +389,13 @@ impl Backend {
             optimize_s: 0.0,
             time_s: 0.0,
         };
-        // The depth link: a constraint between the two poses for as long as both live.
-        report.depth_edge = self.add_depth_edge(id, input.info.depth.as_ref());
+        // The depth links: constraints between the two poses for as long as both live.
+        report.depth_edges = input
+            .info
+            .depth_links
+            .iter()
+            .filter(|l| self.add_depth_edge(id, l))
+            .count();
         // 2. Association: tracks first, then ORB matching against the local map.
         let (by_track, pose_cov) = self.associate_tracks(id, pose_cov);
         report.by_track = by_track;

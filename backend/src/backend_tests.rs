@@ -138,7 +138,7 @@ pub(crate) fn synthetic_run_textured(n: usize, drift: f64, seed: u64, textures: 
                 features,
                 place_features: Vec::new(),
                 odometry: odometry_link,
-                depth: None,
+                depth_links: Vec::new(),
             },
             depth_m: None,
         });
@@ -515,11 +515,11 @@ fn a_depth_link_still_holds_after_the_outliers_are_removed() {
         o.previous_from_this = truth_7_from_8 * off;
         o.inliers = 10;
     }
-    run.inputs[8].info.depth = Some(stride_frontend::DepthLink {
-        previous_id: 7,
-        previous_from_this: truth_7_from_8,
+    run.inputs[8].info.depth_links = vec![stride_frontend::DepthLink {
+        keyframe_id: 7,
+        keyframe_from_this: truth_7_from_8,
         information: Matrix6::identity() * 1e6,
-    });
+    }];
     for f in run.inputs[10].info.features.iter_mut().take(3) {
         if let Some(m) = f.measurement.as_mut() {
             m.p += Vector3::new(0.3, -0.2, 0.4);
@@ -533,7 +533,7 @@ fn a_depth_link_still_holds_after_the_outliers_are_removed() {
     for input in run.inputs.iter().take(11).cloned() {
         let u = backend.add_keyframe(input).unwrap();
         if u.report.keyframe_id == 8 {
-            assert!(u.report.depth_edge, "the link joined the map");
+            assert_eq!(u.report.depth_edges, 1, "the link joined the map");
         }
 
         if u.report.keyframe_id == 10 {

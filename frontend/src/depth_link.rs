@@ -1,13 +1,21 @@
-//! Depth links between keyframes: a new keyframe's depth image aligned with the previous
-//! keyframe's ([`crate::depth_align`]), started at the odometry's relative pose, when the
-//! keyframe's pose rests on few inliers. A back end adds the relative pose found as a
-//! pose-pose constraint beside the features' points.
+//! Depth links between keyframes: a weakly tracked keyframe's depth image aligned with the
+//! depth of each recent keyframe ([`crate::depth_align`]), started at the odometry's pose.
+//! A back end adds each relative pose found as a pose-pose constraint beside the features'
+//! points.
+//!
+//! Why more than the previous keyframe: under blur a keyframe starts every one or two
+//! frames, and a chain of links between such neighbours adds up their errors (the depth
+//! alone, aligned frame to frame on teddy_200, drifts to 18 mm; with a keyframe every 6-12
+//! frames, 8 mm). The recent keyframes kept for recovery stand 0.15 m or 15 degrees apart
+//! (`recovery::SPACING_M`), so links to them span the longer baselines.
 
-use crate::depth_align::DepthAlignParams;
+use crate::depth_align::{align, DepthAlignParams, DepthView};
 use crate::result::{DepthLink, OdometryLink};
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
+use rayon::prelude::*;
 use stride_core::frame::RgbdFrame;
+use stride_core::image::DepthImage;
 
 /// Fewest samples paired, as a fraction of those with depth, for a link: lower than for a
 /// lost frame ([`crate::depth_align`]'s 0.4), since the alignment starts from a pose the
@@ -16,41 +24,70 @@ use stride_core::frame::RgbdFrame;
 const LINK_MIN_PAIRED_FRACTION: f64 = 0.3;
 
 impl VisualOdometry {
-    /// The depth link of the keyframe made of `frame`, whose odometry link is `odometry`.
-    /// `None` when its pose rests on enough inliers (or the links are off), was not
-    /// measured by the features (a lost frame's prediction, or a frame already placed by
-    /// its depth: its link would count the same alignment twice), the previous keyframe's
-    /// depth is not kept, or the alignment is refused (logged).
-    pub(crate) fn depth_link(
-        &self,
-        frame: &RgbdFrame,
-        odometry: &OdometryLink,
-    ) -> Option<DepthLink> {
+    /// The depth links of the keyframe made of `frame`, whose odometry link is `odometry`:
+    /// one to each recent keyframe (newest first) whose alignment is accepted. Empty when
+    /// its pose rests on enough inliers (or the links are off), was not measured by the
+    /// features (a lost frame's prediction, or a frame already placed by its depth: its
+    /// link would count the same alignment twice), or the previous keyframe's depth is not
+    /// kept. A refused alignment is logged and leaves that link out.
+    pub(crate) fn depth_links(&self, frame: &RgbdFrame, odometry: &OdometryLink) -> Vec<DepthLink> {
         let inliers = odometry.inliers;
         if inliers == 0 || inliers >= self.config.keyframe_depth_link_inliers {
-            return None;
+            return Vec::new();
         }
-        let previous = self
+        let Some(previous) = self
             .recent
             .keyframes
             .back()
-            .filter(|k| k.id == odometry.previous_id)?;
+            .filter(|k| k.id == odometry.previous_id)
+        else {
+            return Vec::new();
+        };
+        let world_from_this = previous.world_from_kf * odometry.previous_from_this;
         let params = DepthAlignParams {
             min_paired_fraction: LINK_MIN_PAIRED_FRACTION,
             ..DepthAlignParams::from_config(&self.config)
         };
-        // Both in the previous keyframe's frame: the link is relative.
-        let a = self.align_with(
-            frame,
-            previous,
-            Isometry3::identity(),
-            odometry.previous_from_this,
-            &params,
-        )?;
-        Some(DepthLink {
-            previous_id: odometry.previous_id,
-            previous_from_this: a.world_from_cur,
-            information: a.information,
-        })
+        // The keyframes' depth and poses only: their pyramids are not shared across
+        // threads. Each alignment is computed alone, so the links do not depend on the
+        // number of threads.
+        let targets: Vec<(u64, &DepthImage, Isometry3<f64>)> = self
+            .recent
+            .keyframes
+            .iter()
+            .rev()
+            .map(|k| (k.id, &k.depth_m, k.world_from_kf))
+            .collect();
+        let camera = &self.camera;
+        targets
+            .par_iter()
+            .map(|&(id, depth_m, world_from_kf)| {
+                // Both in the linked keyframe's frame: the link is relative.
+                let keyframe = DepthView {
+                    depth_m,
+                    world_from_camera: Isometry3::identity(),
+                };
+                let current = DepthView {
+                    depth_m: &frame.depth_m,
+                    world_from_camera: world_from_kf.inverse() * world_from_this,
+                };
+                align(&keyframe, &current, camera, &params)
+                    .map(|a| DepthLink {
+                        keyframe_id: id,
+                        keyframe_from_this: a.world_from_cur,
+                        information: a.information,
+                    })
+                    .map_err(|e| {
+                        tracing::debug!(
+                            "frame {}: no depth link to keyframe {id}: {e}",
+                            frame.index
+                        );
+                    })
+                    .ok()
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .flatten()
+            .collect()
     }
 }

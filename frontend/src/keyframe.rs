@@ -188,8 +188,11 @@ impl VisualOdometry {
         } else {
             vec![None; tracks.len()]
         };
-        // Before this keyframe joins the recent ones: the link is to the one before it.
-        let depth = odometry.as_ref().and_then(|o| self.depth_link(frame, o));
+        // Before this keyframe joins the recent ones: the links are to those before it.
+        let depth_links = odometry
+            .as_ref()
+            .map(|o| self.depth_links(frame, o))
+            .unwrap_or_default();
         // Measured at the frame's time, as the tracks are (recovery computes its own, for
         // a still camera, when it needs them). Relocalization remembers a keyframe by them
         // too, so they are detected for such a keyframe even without a back end.
@@ -239,7 +242,7 @@ impl VisualOdometry {
             features,
             place_features,
             odometry,
-            depth,
+            depth_links,
         })
     }
 

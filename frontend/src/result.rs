@@ -147,15 +147,16 @@ pub struct OdometryLink {
     pub inliers: usize,
 }
 
-/// The link of a keyframe to the one before it measured by aligning their depth images
-/// ([`crate::depth_align`]).
+/// The link of a keyframe to an earlier one (the previous keyframe or an older recent one)
+/// measured by aligning their depth images ([`crate::depth_align`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthLink {
-    /// The previous keyframe's identifier.
-    pub previous_id: u64,
-    /// `previous_from_this` (m).
-    pub previous_from_this: Isometry3<f64>,
-    /// Information matrix of `previous_from_this` (left perturbation in the previous
+    /// The earlier keyframe's identifier.
+    pub keyframe_id: u64,
+    /// `keyframe_from_this`: this keyframe's pose in the earlier keyframe's camera frame
+    /// (m).
+    pub keyframe_from_this: Isometry3<f64>,
+    /// Information matrix of `keyframe_from_this` (left perturbation in the earlier
     /// keyframe's camera frame, translation then rotation; 1/m², 1/rad²).
     pub information: Matrix6<f64>,
 }
@@ -175,10 +176,11 @@ pub struct KeyframeInfo {
     pub place_features: Vec<PlaceFeature>,
     /// The link to the previous keyframe; `None` for the first.
     pub odometry: Option<OdometryLink>,
-    /// The same link measured by depth alignment, for a keyframe whose pose rests on few
-    /// inliers ([`crate::VoConfig::keyframe_depth_link_inliers`]); `None` otherwise, for
-    /// the first keyframe, after a lost frame, or when the alignment was refused.
-    pub depth: Option<DepthLink>,
+    /// Links measured by depth alignment to the recent keyframes (newest first), for a
+    /// keyframe whose pose rests on few inliers
+    /// ([`crate::VoConfig::keyframe_depth_link_inliers`]); empty otherwise, for the first
+    /// keyframe, after a lost frame, or where the alignments were refused.
+    pub depth_links: Vec<DepthLink>,
 }
 
 /// What the odometry says about one frame.

@@ -406,7 +406,7 @@ fn report_json(
             json!({"by_track": sum(|k| k.by_track), "by_orb": sum(|k| k.by_orb), "fused": sum(|k| k.fused),
                    "new_points": sum(|k| k.new_points), "outliers": sum(|k| k.outliers),
                    "odometry_edges": sum(|k| usize::from(k.odometry_edge)),
-                   "depth_edges": sum(|k| usize::from(k.depth_edge)),
+                   "depth_edges": sum(|k| k.depth_edges),
                    "revisit_edges": sum(|k| usize::from(k.revisit_edge))}),
         );
         m.insert(
