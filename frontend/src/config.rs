@@ -175,9 +175,10 @@ pub struct VoConfig {
     /// keyframe whose pose rests on fewer than `keyframe_depth_link_inliers` inliers (a wide
     /// baseline after dropped frames, a blurred image) has its depth image aligned with
     /// each recent keyframe's (the previous one and the older ones recovery keeps, up to
-    /// `recovery_keyframes`, 0.15 m or 15 degrees apart; [`crate::depth_align`], from the
-    /// odometry's pose), and each relative pose found goes to a back end as a constraint
-    /// beside the features' points. 0: never. Needs `recovery_keyframes`.
+    /// `recovery_keyframes`, 0.15 m or 15 degrees apart; the previous one alone when the
+    /// keyframe stands more than 5 cm or 5 degrees from it; [`crate::depth_align`], from
+    /// the odometry's pose), and each relative pose found goes to a back end as a
+    /// constraint beside the features' points. 0: never. Needs `recovery_keyframes`.
     pub keyframe_depth_link_inliers: usize,
     /// Rolling-shutter readout time of the colour camera, top row to bottom row (s); the
     /// frame's timestamp is the middle row's time. Keypoints are brought back to the frame's

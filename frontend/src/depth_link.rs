@@ -7,7 +7,8 @@
 //! frames, and a chain of links between such neighbours adds up their errors (the depth
 //! alone, aligned frame to frame on teddy_200, drifts to 18 mm; with a keyframe every 6-12
 //! frames, 8 mm). The recent keyframes kept for recovery stand 0.15 m or 15 degrees apart
-//! (`recovery::SPACING_M`), so links to them span the longer baselines.
+//! (`recovery::SPACING_M`), so links to them span the longer baselines. Where keyframes
+//! already stand far apart (a low frame rate, a gap) the previous one is linked alone.
 
 use crate::depth_align::{align, DepthAlignParams, DepthView};
 use crate::result::{DepthLink, OdometryLink};
@@ -23,9 +24,21 @@ use stride_core::image::DepthImage;
 /// (teddy_200 after a 1 s gap: 35 %).
 const LINK_MIN_PAIRED_FRACTION: f64 = 0.3;
 
+/// A weak keyframe is linked to the older recent keyframes, beyond the previous one, only
+/// when it stands within this distance (m) and [`SHORT_STEP_DEG`] of the previous one: a
+/// chain of such short links is what adds up (teddy_200 blurred to 25 px: keyframes a
+/// median 12 mm and 0.9 degree apart). At 2-3 frames per second keyframes stand 10-20 cm
+/// and 8-12 degrees apart, a chain is short, and the older keyframes overlap less: linking
+/// them there cost every 10th frame of teddy_200 4.4 -> 4.8 mm.
+const SHORT_STEP_M: f64 = 0.05;
+
+/// See [`SHORT_STEP_M`] (degrees).
+const SHORT_STEP_DEG: f64 = 5.0;
+
 impl VisualOdometry {
     /// The depth links of the keyframe made of `frame`, whose odometry link is `odometry`:
-    /// one to each recent keyframe (newest first) whose alignment is accepted. Empty when
+    /// one to each recent keyframe (newest first; only the previous one after a step
+    /// longer than [`SHORT_STEP_M`] or [`SHORT_STEP_DEG`]) whose alignment is accepted. Empty when
     /// its pose rests on enough inliers (or the links are off), was not measured by the
     /// features (a lost frame's prediction, or a frame already placed by its depth: its
     /// link would count the same alignment twice), or the previous keyframe's depth is not
@@ -43,7 +56,10 @@ impl VisualOdometry {
         else {
             return Vec::new();
         };
-        let world_from_this = previous.world_from_kf * odometry.previous_from_this;
+        let step = &odometry.previous_from_this;
+        let short = step.translation.vector.norm() < SHORT_STEP_M
+            && step.rotation.angle().to_degrees() < SHORT_STEP_DEG;
+        let world_from_this = previous.world_from_kf * step;
         let params = DepthAlignParams {
             min_paired_fraction: LINK_MIN_PAIRED_FRACTION,
             ..DepthAlignParams::from_config(&self.config)
@@ -56,6 +72,7 @@ impl VisualOdometry {
             .keyframes
             .iter()
             .rev()
+            .take(if short { usize::MAX } else { 1 })
             .map(|k| (k.id, &k.depth_m, k.world_from_kf))
             .collect();
         let camera = &self.camera;
