@@ -38,11 +38,14 @@ const SHORT_STEP_DEG: f64 = 5.0;
 impl VisualOdometry {
     /// The depth links of the keyframe made of `frame`, whose odometry link is `odometry`:
     /// one to each recent keyframe (newest first; only the previous one after a step
-    /// longer than [`SHORT_STEP_M`] or [`SHORT_STEP_DEG`]) whose alignment is accepted. Empty when
-    /// its pose rests on enough inliers (or the links are off), was not measured by the
-    /// features (a lost frame's prediction, or a frame already placed by its depth: its
-    /// link would count the same alignment twice), or the previous keyframe's depth is not
-    /// kept. A refused alignment is logged and leaves that link out.
+    /// longer than [`SHORT_STEP_M`] or [`SHORT_STEP_DEG`]) whose alignment is accepted.
+    /// Empty when its pose rests on enough inliers (or the links are off), was not
+    /// measured by the features (a lost frame's prediction, or a frame already placed by
+    /// its depth: its link would count the same alignment twice), or the previous
+    /// keyframe's depth is not kept. A refused alignment is logged and leaves that link
+    /// out. The recent keyframes' poses are the odometry's as it recorded them, so the
+    /// starts for the older ones can be a few centimetres off (the first level pairs
+    /// within 10 cm); the links themselves are relative.
     pub(crate) fn depth_links(&self, frame: &RgbdFrame, odometry: &OdometryLink) -> Vec<DepthLink> {
         let inliers = odometry.inliers;
         if inliers == 0 || inliers >= self.config.keyframe_depth_link_inliers {
