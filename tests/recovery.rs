@@ -149,9 +149,7 @@ fn a_frame_after_a_gap_is_aligned_by_its_depth_from_where_its_few_tracks_agree()
         tmp.path(),
         "[odometry]\ndepth_alignment = false\nrecovery_keyframes = false\n",
     );
-    assert_eq!(with["frames_lost"], 0, "{with}");
-    assert_eq!(with["frames_by_status"]["depth"], 1, "{with}");
-    assert_eq!(with["segments"], 1, "{with}");
+    assert_one_frame_placed_by_depth(&with);
     assert_eq!(without["frames_lost"], 1, "{without}");
     // Measured (seeds 1-3, `seqtools.py gap ... 3 1.5`): 4.5-4.6 mm, against 66 mm when
     // the frame is lost and its piece placed by the guess (the alignment from the guess
@@ -171,9 +169,7 @@ fn a_frame_after_a_two_second_gap_is_placed_by_a_search_over_depth_alignments() 
     // quarter of its samples near the true pose.
     let seq = frames_dropped(&teddy, tmp.path(), 90..150);
     let (with, without) = with_and_without(&seq, tmp.path(), "[odometry]\ndepth_search = false\n");
-    assert_eq!(with["frames_lost"], 0, "{with}");
-    assert_eq!(with["frames_by_status"]["depth"], 1, "{with}");
-    assert_eq!(with["segments"], 1, "{with}");
+    assert_one_frame_placed_by_depth(&with);
     assert_eq!(without["frames_lost"], 1, "{without}");
     // Measured: 4.7 mm here, against 101 mm when the frame is lost and its piece placed by
     // the guess; `seqtools.py gap ... 3 2`, seeds 1-3: 5.6 / 6.2 / 5.7 mm against 98 mm.
@@ -194,9 +190,7 @@ fn a_frame_after_a_gap_is_placed_by_its_depth_where_its_small_overlap_agrees() {
     let out = tmp.path().join("out");
     let args = ["--camera", "fr3", "--no-map", "--seed", "3"];
     let report = common::run_report("run", &seq, &out, &args);
-    assert_eq!(report["frames_lost"], 0, "{report}");
-    assert_eq!(report["frames_by_status"]["depth"], 1, "{report}");
-    assert_eq!(report["segments"], 1, "{report}");
+    assert_one_frame_placed_by_depth(&report);
     // Measured: 3.6 mm; 33.6 mm when the frame was lost and its piece placed by the guess.
     let ate = num(&report["ate"], "rmse");
     eprintln!("2 s gap at 4 s, seed 3: ATE {ate} m");
@@ -215,9 +209,7 @@ fn a_pose_from_few_orb_matches_after_a_gap_is_corrected_by_the_depth() {
     // degrees of the true pose, and nothing later corrects the ORB pose.
     let seq = frames_dropped(&teddy, tmp.path(), 60..120);
     let (with, without) = with_and_without(&seq, tmp.path(), "[odometry]\ndepth_search = false\n");
-    assert_eq!(with["frames_lost"], 0, "{with}");
-    assert_eq!(with["frames_by_status"]["depth"], 1, "{with}");
-    assert_eq!(with["segments"], 1, "{with}");
+    assert_one_frame_placed_by_depth(&with);
     assert_eq!(without["frames_by_status"]["recovered"], 1, "{without}");
     // Measured: `seqtools.py gap ... 2 2`, seeds 1-3: 4.0 / 4.4 / 4.1 mm, against
     // 47 / 50 / 38 mm with the ORB pose.
@@ -320,6 +312,13 @@ fn run_with_frames_dropped(
     let seq = frames_dropped(teddy, dir, dropped);
     let out = dir.join("out");
     common::run_report("run", &seq, &out, &["--camera", "fr3", "--no-map"])
+}
+
+/// Asserts that the run placed one frame by its depth, lost none, and stayed one piece.
+fn assert_one_frame_placed_by_depth(report: &serde_json::Value) {
+    assert_eq!(report["frames_lost"], 0, "{report}");
+    assert_eq!(report["frames_by_status"]["depth"], 1, "{report}");
+    assert_eq!(report["segments"], 1, "{report}");
 }
 
 /// Asserts that the run `with` a mechanism ends below `max_ate_m` and below 0.3 times the

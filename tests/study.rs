@@ -79,6 +79,25 @@ fn the_quick_blur_study_measures_each_run_and_sees_the_blur_in_the_images() {
     assert!(!again.status.success());
 }
 
+/// `stride study blur --quick --real-only` on `seq` with `extra` arguments, written to
+/// `out`: its study.json.
+fn quick_real_side(
+    seq: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let mut args = vec!["study", "blur", "--quick", "--quiet", "--real-only"];
+    args.extend([
+        "--real",
+        seq.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    args.extend(extra);
+    common::run_ok(&args);
+    serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap()
+}
+
 /// The real side on teddy_200's first 60 frames: blurred to a median 25 px along each
 /// pixel's motion, the images lose sharpness and the SLAM loses accuracy (measured 3.3 mm
 /// unblurred, 8.1 mm blurred), every frame still has a pose, and the report shows it.
@@ -89,19 +108,7 @@ fn the_real_side_blurs_recorded_frames_along_their_motion() {
     };
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("study");
-    common::run_ok(&[
-        "study",
-        "blur",
-        "--quick",
-        "--quiet",
-        "--real-only",
-        "--real",
-        teddy.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    let j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap()).unwrap();
+    let j = quick_real_side(&teddy, &out, &[]);
     assert!(j["runs"].as_array().unwrap().is_empty());
     let runs = j["real"]["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 2);
@@ -144,24 +151,11 @@ fn a_weak_keyframe_under_blur_is_tied_by_its_depth_to_the_recent_keyframes() {
         let cfg = dir.path().join(format!("{name}.toml"));
         std::fs::write(&cfg, config).unwrap();
         let out = dir.path().join(name);
-        common::run_ok(&[
-            "study",
-            "blur",
-            "--quick",
-            "--quiet",
-            "--real-only",
-            "--real",
-            teddy.to_str().unwrap(),
-            "--lengths",
-            "30",
-            "--config",
-            cfg.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        let j: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join("study.json")).unwrap())
-                .unwrap();
+        let j = quick_real_side(
+            &teddy,
+            &out,
+            &["--lengths", "30", "--config", cfg.to_str().unwrap()],
+        );
         let runs = j["real"]["runs"].as_array().unwrap();
         assert_eq!(runs.len(), 1, "{j}");
         assert_eq!(runs[0]["lost"].as_u64(), Some(0), "{j}");

@@ -10,7 +10,8 @@
 //! (`recovery::SPACING_M`), so links to them span the longer baselines. Where keyframes
 //! already stand far apart (a low frame rate, a gap) the previous one is linked alone.
 
-use crate::depth_align::{align, DepthAlignParams, DepthView};
+use crate::depth_align::DepthAlignParams;
+use crate::recovery::align_with_keyframe;
 use crate::result::{DepthLink, OdometryLink};
 use crate::vo::VisualOdometry;
 use nalgebra::Isometry3;
@@ -78,36 +79,21 @@ impl VisualOdometry {
             .take(if short { usize::MAX } else { 1 })
             .map(|k| (k.id, &k.depth_m, k.world_from_kf))
             .collect();
+        // Collected in order: the links come newest first whatever the thread count.
         let camera = &self.camera;
         targets
             .par_iter()
-            .map(|&(id, depth_m, world_from_kf)| {
+            .filter_map(|&(id, depth_m, world_from_kf)| {
                 // Both in the linked keyframe's frame: the link is relative.
-                let keyframe = DepthView {
-                    depth_m,
-                    world_from_camera: Isometry3::identity(),
-                };
-                let current = DepthView {
-                    depth_m: &frame.depth_m,
-                    world_from_camera: world_from_kf.inverse() * world_from_this,
-                };
-                align(&keyframe, &current, camera, &params)
-                    .map(|a| DepthLink {
-                        keyframe_id: id,
-                        keyframe_from_this: a.world_from_cur,
-                        information: a.information,
-                    })
-                    .map_err(|e| {
-                        tracing::debug!(
-                            "frame {}: no depth link to keyframe {id}: {e}",
-                            frame.index
-                        );
-                    })
-                    .ok()
+                let keyframe = (id, depth_m, Isometry3::identity());
+                let start = world_from_kf.inverse() * world_from_this;
+                let a = align_with_keyframe(camera, frame, keyframe, start, &params)?;
+                Some(DepthLink {
+                    keyframe_id: id,
+                    keyframe_from_this: a.world_from_cur,
+                    information: a.information,
+                })
             })
-            .collect::<Vec<_>>()
-            .into_iter()
-            .flatten()
             .collect()
     }
 }

@@ -35,6 +35,7 @@ use opencv::core::Ptr;
 use opencv::features2d::ORB;
 use std::collections::VecDeque;
 use std::rc::Rc;
+use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::image::DepthImage;
 use stride_core::rng::SplitMix64;
@@ -396,9 +397,7 @@ impl VisualOdometry {
         Some(Recovered::by_depth(&a, kf.id, &kf.world_from_kf))
     }
 
-    /// Aligns `frame`'s depth with recent keyframe `kf`'s ([`crate::depth_align`]): the
-    /// keyframe at `world_from_kf`, the frame starting at `world_from_cur` (any common
-    /// frame). `None` when the alignment is refused (logged).
+    /// Aligns `frame`'s depth with recent keyframe `kf`'s ([`align_with_keyframe`]).
     pub(crate) fn align_with(
         &self,
         frame: &RgbdFrame,
@@ -407,23 +406,8 @@ impl VisualOdometry {
         world_from_cur: Isometry3<f64>,
         params: &DepthAlignParams,
     ) -> Option<DepthAlignment> {
-        let keyframe = DepthView {
-            depth_m: &kf.depth_m,
-            world_from_camera: world_from_kf,
-        };
-        let current = DepthView {
-            depth_m: &frame.depth_m,
-            world_from_camera: world_from_cur,
-        };
-        align(&keyframe, &current, &self.camera, params)
-            .map_err(|e| {
-                tracing::debug!(
-                    "frame {}: depth not aligned with keyframe {}: {e}",
-                    frame.index,
-                    kf.id
-                );
-            })
-            .ok()
+        let keyframe = (kf.id, &kf.depth_m, world_from_kf);
+        align_with_keyframe(&self.camera, frame, keyframe, world_from_cur, params)
     }
 
     /// The pose and the new tracks (the inliers, carrying their matched world points) of
@@ -467,6 +451,35 @@ impl VisualOdometry {
             matched_from_cur: world_from_matched.inverse() * e.ref_from_cur,
         }
     }
+}
+
+/// Aligns `frame`'s depth with the depth of keyframe `kf_id` ([`crate::depth_align`]): the
+/// keyframe at `world_from_kf`, the frame starting at `world_from_cur` (any common frame).
+/// `None` when the alignment is refused (logged). Needs no odometry, so alignments with
+/// several keyframes can run side by side.
+pub(crate) fn align_with_keyframe(
+    camera: &PinholeCamera,
+    frame: &RgbdFrame,
+    (kf_id, kf_depth_m, world_from_kf): (u64, &DepthImage, Isometry3<f64>),
+    world_from_cur: Isometry3<f64>,
+    params: &DepthAlignParams,
+) -> Option<DepthAlignment> {
+    let keyframe = DepthView {
+        depth_m: kf_depth_m,
+        world_from_camera: world_from_kf,
+    };
+    let current = DepthView {
+        depth_m: &frame.depth_m,
+        world_from_camera: world_from_cur,
+    };
+    align(&keyframe, &current, camera, params)
+        .map_err(|e| {
+            tracing::debug!(
+                "frame {}: depth not aligned with keyframe {kf_id}: {e}",
+                frame.index
+            );
+        })
+        .ok()
 }
 
 #[cfg(test)]
