@@ -450,6 +450,7 @@ fn report_json(
                "keyframes_deferred": g.keyframes_deferred,
                "estimates_rejected": g.estimates_rejected}),
     );
+    m.insert("recoveries_refused".into(), json!(out.recoveries_refused));
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {
         m.insert("ate".into(), at.to_json());

@@ -182,6 +182,10 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 g("frames_recovered"),
             ],
             vec![
+                "recoveries refused: a step no camera makes".into(),
+                j["recoveries_refused"].to_string(),
+            ],
+            vec![
                 "relocalized (in the loaded map)".into(),
                 g("frames_relocalized"),
             ],

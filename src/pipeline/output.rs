@@ -154,6 +154,9 @@ pub struct RunOutput {
     ///
     /// [`Pipeline::add_gyroscope`]: crate::Pipeline::add_gyroscope
     pub gyroscope_frames: stride_frontend::GyroscopeFrames,
+    /// Poses recovery found and refused as a step no camera makes from the tracked frame
+    /// before ([`stride_frontend::VisualOdometry::recoveries_refused`]).
+    pub recoveries_refused: usize,
 }
 
 impl RunOutput {

@@ -380,6 +380,7 @@ impl Slam {
             backend,
             world: WorldFrame::first_camera(),
             gyroscope_frames: self.vo.gyroscope_frames(),
+            recoveries_refused: self.vo.recoveries_refused(),
         };
         let world = self.world.or_else(|| {
             let poses = out.final_poses();
