@@ -231,9 +231,10 @@ fn iterate(
     let mut world_from_cur = current.world_from_camera;
     let mut last = Normal::default();
     let mut sampled: Option<(u32, Vec<Point3<f64>>)> = None;
+    let rays = Rays::new(camera);
     for level in levels {
         if sampled.as_ref().map(|s| s.0) != Some(level.stride) {
-            let points = samples(current.depth_m, camera, level.stride, params);
+            let points = samples(current.depth_m, &rays, level.stride, params);
             sampled = Some((level.stride, points));
         }
         let samples = sampled.as_ref().map_or(&[][..], |s| &s.1[..]);
@@ -243,7 +244,7 @@ fn iterate(
                 keyframe,
                 &kf_from_world,
                 &world_from_cur,
-                camera,
+                &rays,
                 level.max_distance_m,
                 params,
             );
@@ -299,7 +300,7 @@ fn accept(
 /// The frame's samples: points (camera frame, m) every `stride` pixels with depth in range.
 fn samples(
     depth_m: &DepthImage,
-    camera: &PinholeCamera,
+    rays: &Rays<'_>,
     stride: u32,
     params: &DepthAlignParams,
 ) -> Vec<Point3<f64>> {
@@ -309,11 +310,60 @@ fn samples(
         for u in (stride / 2..w).step_by(stride as usize) {
             let d = f64::from(depth_m.get(u, v).unwrap_or(0.0));
             if params.in_range(d) {
-                out.push(camera.unproject(&Point2::new(f64::from(u), f64::from(v)), d));
+                out.push(rays.unproject(u, v, d));
             }
         }
     }
     out
+}
+
+/// The camera's rays through whole pixels, for [`PinholeCamera::unproject`]'s numbers at a
+/// fraction of its cost: without distortion a ray's `X/Z` depends on the column alone and
+/// its `Y/Z` on the row alone, so one division per column and per row, made once per
+/// alignment, serves every lookup (each iteration unprojects five keyframe pixels per
+/// sample: under blur, with a weak keyframe's five depth links, the unprojection's
+/// divisions took a third of the SLAM's time). With distortion, or off the tables, each
+/// lookup asks the camera, as before. The same arithmetic either way: the same bits.
+struct Rays<'a> {
+    camera: &'a PinholeCamera,
+    /// `X/Z` by column and `Y/Z` by row; empty with distortion.
+    x_by_column: Vec<f64>,
+    y_by_row: Vec<f64>,
+}
+
+impl<'a> Rays<'a> {
+    fn new(camera: &'a PinholeCamera) -> Self {
+        let separable = camera.distortion().is_none();
+        let ray = |u: u32, v: u32| camera.normalized_from_pixel(&pixel(u, v));
+        let (x_by_column, y_by_row) = if separable {
+            let xs = (0..camera.width()).map(|u| ray(u, 0).x).collect();
+            (xs, (0..camera.height()).map(|v| ray(0, v).y).collect())
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        Self {
+            camera,
+            x_by_column,
+            y_by_row,
+        }
+    }
+
+    /// The camera-frame point (m) at pixel `(u, v)` with depth `depth_m` (m, along the
+    /// optical axis).
+    fn unproject(&self, u: u32, v: u32, depth_m: f64) -> Point3<f64> {
+        match (
+            self.x_by_column.get(u as usize),
+            self.y_by_row.get(v as usize),
+        ) {
+            (Some(&x), Some(&y)) => Point3::new(x * depth_m, y * depth_m, depth_m),
+            _ => self.camera.unproject(&pixel(u, v), depth_m),
+        }
+    }
+}
+
+/// The centre of whole pixel `(u, v)`.
+fn pixel(u: u32, v: u32) -> Point2<f64> {
+    Point2::new(f64::from(u), f64::from(v))
 }
 
 /// The Gauss-Newton system of one iteration and what it was built from.
@@ -336,7 +386,7 @@ fn normal_equations(
     keyframe: &DepthView<'_>,
     kf_from_world: &Isometry3<f64>,
     world_from_cur: &Isometry3<f64>,
-    camera: &PinholeCamera,
+    rays: &Rays<'_>,
     max_distance_m: f64,
     params: &DepthAlignParams,
 ) -> Normal {
@@ -349,7 +399,7 @@ fn normal_equations(
     for p_cur in samples {
         let p_world = world_from_cur * p_cur;
         let p_kf = kf_from_world * p_world;
-        let Some((q_kf, normal_kf)) = surface(keyframe.depth_m, camera, &p_kf, params) else {
+        let Some((q_kf, normal_kf)) = surface(keyframe.depth_m, rays, &p_kf, params) else {
             continue;
         };
         n.on_surface += 1;
@@ -379,13 +429,14 @@ fn normal_equations(
 /// normal of its tangent plane facing the camera; none off the image, without depth, or across a depth edge.
 fn surface(
     depth_m: &DepthImage,
-    camera: &PinholeCamera,
+    rays: &Rays<'_>,
     p_kf: &Point3<f64>,
     params: &DepthAlignParams,
 ) -> Option<(Point3<f64>, Vector3<f64>)> {
     if p_kf.z <= 0.0 {
         return None;
     }
+    let camera = rays.camera;
     let px = camera.project(p_kf)?;
     let (u, v) = (px.x.round(), px.y.round());
     let s = f64::from(NORMAL_STEP_PX);
@@ -396,12 +447,7 @@ fn surface(
     let point = |du: i64, dv: i64| -> Option<(Point3<f64>, f64)> {
         let (x, y) = ((i64::from(u) + du) as u32, (i64::from(v) + dv) as u32);
         let d = f64::from(depth_m.get(x, y)?);
-        params.in_range(d).then(|| {
-            (
-                camera.unproject(&Point2::new(f64::from(x), f64::from(y)), d),
-                d,
-            )
-        })
+        params.in_range(d).then(|| (rays.unproject(x, y, d), d))
     };
     let step = i64::from(NORMAL_STEP_PX);
     let (centre, d) = point(0, 0)?;

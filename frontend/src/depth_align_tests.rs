@@ -137,3 +137,27 @@ fn a_frame_that_does_not_overlap_the_keyframe_is_refused() {
     let e = align_from_origin(&kf_depth, &cur_depth);
     assert!(e.is_err(), "{e:?}");
 }
+
+/// The alignment's ray tables give the camera's own unprojection, bit for bit, at every
+/// whole pixel (so they change no result, only the time), and with lens distortion and
+/// off the image they ask the camera.
+#[test]
+fn the_ray_tables_unproject_as_the_camera_does() {
+    use stride_core::camera::BrownConrady;
+    let plain = camera();
+    let distorted = camera()
+        .with_distortion(BrownConrady::from_array([0.26, -0.95, -0.005, 0.002, 1.16]))
+        .unwrap();
+    for cam in [plain, distorted] {
+        let rays = Rays::new(&cam);
+        for v in (0..cam.height() + 2).step_by(7) {
+            for u in (0..cam.width() + 2).step_by(5) {
+                let depth_m = 0.5 + f64::from(u + v) * 1e-3;
+                let expected = cam.unproject(&Point2::new(f64::from(u), f64::from(v)), depth_m);
+                assert_eq!(rays.unproject(u, v, depth_m), expected, "pixel ({u}, {v})");
+            }
+        }
+    }
+    assert_eq!(Rays::new(&plain).x_by_column.len(), 320);
+    assert!(Rays::new(&distorted).x_by_column.is_empty());
+}
