@@ -324,6 +324,8 @@ fn samples(
 /// sample: under blur, with a weak keyframe's five depth links, the unprojection's
 /// divisions took a third of the SLAM's time). With distortion, or off the tables, each
 /// lookup asks the camera, as before. The same arithmetic either way: the same bits.
+/// (`stride_mapping`'s ray table is the other way round: f32, for distorted cameras, one
+/// row at a time for its vectorised input stage; these must stay bit-exact.)
 struct Rays<'a> {
     camera: &'a PinholeCamera,
     /// `X/Z` by column and `Y/Z` by row; empty with distortion.
