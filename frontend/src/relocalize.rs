@@ -236,7 +236,9 @@ impl VisualOdometry {
     /// disagrees with `gyroscope` (the gyroscope's rotation over the same interval, `None`
     /// when it measured none) is refused and the next way tried, as tracking's estimates
     /// are: a gyroscope measures the turn across a gap better than a few ORB matches
-    /// between distant views do. `None` when none finds it.
+    /// between distant views do. A recovered pose that is a step no camera makes from a
+    /// tracked previous frame is refused too (`held_to_step_bounds`). `None` when none
+    /// finds it.
     pub(crate) fn search_by_appearance(
         &mut self,
         frame: &RgbdFrame,
@@ -251,7 +253,10 @@ impl VisualOdometry {
             .across_gap(self.prev_t, frame.t_s)
             .is_some();
         let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO), None)?;
-        let found = (self.plausible(frame, recovered), TrackingStatus::Recovered);
+        let found = (
+            self.held_to_step_bounds(frame, recovered),
+            TrackingStatus::Recovered,
+        );
         if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
             return Ok(Some(r));
         }
@@ -295,7 +300,10 @@ impl VisualOdometry {
         let guided = across_gap.then_some(crate::guided::MIN_ROUGH_INLIERS);
         let bounds = (LOST_MAX_HAMMING, LOST_RATIO);
         let recovered = self.recover(frame, pyr, at_least, bounds, guided)?;
-        let found = (self.plausible(frame, recovered), TrackingStatus::Recovered);
+        let found = (
+            self.held_to_step_bounds(frame, recovered),
+            TrackingStatus::Recovered,
+        );
         if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
             return Ok(Some(r));
         }
@@ -341,7 +349,11 @@ impl VisualOdometry {
     /// injector) with `fb_max_error_px` at 1.5-2 px, frame 184 (seeds 2 and 7) was
     /// recovered from 31 ORB inliers 0.34 m from frame 183, and bundle adjustment kept it:
     /// ATE 76 and 58 mm; refused, 8.2 and 9.1 mm.
-    fn plausible(&mut self, frame: &RgbdFrame, found: Option<Recovered>) -> Option<Recovered> {
+    fn held_to_step_bounds(
+        &mut self,
+        frame: &RgbdFrame,
+        found: Option<Recovered>,
+    ) -> Option<Recovered> {
         let r = found?;
         let prev_from_cur = self.world_from_prev.inverse() * r.world_from_cur;
         let cfg = &self.config;
