@@ -221,8 +221,8 @@ impl VisualOdometry {
             self.places.remember(id, *world_from_cur, place_points, cap);
         }
         if let Some(keep) = self.config.recovery_keyframes {
-            self.recent
-                .push(id, pyr, &frame.depth_m, *world_from_cur, keep);
+            let linked = !depth_links.is_empty();
+            (self.recent).push(id, pyr, &frame.depth_m, (*world_from_cur, linked), keep);
         }
         let features = tracks
             .iter()

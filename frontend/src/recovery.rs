@@ -35,6 +35,7 @@ use opencv::core::Ptr;
 use opencv::features2d::ORB;
 use std::collections::VecDeque;
 use std::rc::Rc;
+use std::sync::Arc;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
 use stride_core::image::DepthImage;
@@ -45,6 +46,13 @@ pub(crate) const SPACING_M: f64 = 0.15;
 /// ... or this rotation apart (rad, 15 degrees), except the newest: a handful of them then
 /// covers the last metre or so of the path, not the last few frames.
 pub(crate) const SPACING_RAD: f64 = 0.26;
+/// The newest keyframes whose depth is kept for the depth links at short baselines
+/// ([`crate::depth_link`]), beside the spaced ones recovery keeps: under blur keyframes
+/// come 1-2 cm apart, so these reach back 10-20 cm; each costs its depth image (1.2 MB at
+/// VGA), shared with the spaced set where it belongs to both (teddy_200: peak RSS 153 ->
+/// 164 MB; with 16, the same trajectories at 25 px).
+pub(crate) const NEARBY_KEYFRAMES: usize = 10;
+
 /// RANSAC iterations for the matches: their inlier ratio can be a quarter, where 300 (the
 /// tracking default) finds a clean sample only about half of the time.
 pub(crate) const RANSAC_ITERATIONS: usize = 2000;
@@ -136,16 +144,29 @@ pub(crate) struct RecentKeyframe {
     /// Its identifier.
     pub(crate) id: u64,
     pyramid: Rc<Pyramid>,
-    pub(crate) depth_m: DepthImage,
+    pub(crate) depth_m: Arc<DepthImage>,
     /// Its `world_from_camera`.
     pub(crate) world_from_kf: Isometry3<f64>,
     /// Its ORB points, computed the first time recovery needs them.
     pub(crate) points: Option<Vec<OrbPoint>>,
 }
 
+/// A keyframe's depth image and pose, as the depth links need them.
+pub(crate) struct NearbyKeyframe {
+    /// Its identifier.
+    pub(crate) id: u64,
+    pub(crate) depth_m: Arc<DepthImage>,
+    /// Its `world_from_camera`, as the odometry placed it.
+    pub(crate) world_from_kf: Isometry3<f64>,
+    /// Whether it was itself tied by depth links (a weak keyframe).
+    pub(crate) linked: bool,
+}
+
 /// The most recent keyframes (oldest first) and the ORB extractor recovery uses.
 pub(crate) struct RecentKeyframes {
     pub(crate) keyframes: VecDeque<RecentKeyframe>,
+    /// The [`NEARBY_KEYFRAMES`] newest keyframes, spaced or not (oldest first).
+    pub(crate) nearby: VecDeque<NearbyKeyframe>,
     pub(crate) orb: Ptr<ORB>,
     /// The extractor of keyframes' place features (fewer levels: every keyframe pays for
     /// it).
@@ -157,6 +178,7 @@ impl RecentKeyframes {
     pub(crate) fn new() -> Result<Self, FrontendError> {
         Ok(Self {
             keyframes: VecDeque::new(),
+            nearby: VecDeque::new(),
             orb: orb_extractor(8)?,
             place_orb: orb_extractor(PLACE_LEVELS)?,
         })
@@ -164,13 +186,14 @@ impl RecentKeyframes {
 
     /// Adds keyframe `id` (sharing its pyramid, copying its depth), forgetting the oldest
     /// beyond `keep`. The previous newest is dropped if it is within the spacing
-    /// ([`SPACING_M`], [`SPACING_RAD`]) of the one before it.
+    /// ([`SPACING_M`], [`SPACING_RAD`]) of the one before it. The nearby ones keep the
+    /// newest [`NEARBY_KEYFRAMES`], spaced or not.
     pub(crate) fn push(
         &mut self,
         id: u64,
         pyramid: &Rc<Pyramid>,
         depth_m: &DepthImage,
-        world_from_kf: Isometry3<f64>,
+        (world_from_kf, linked): (Isometry3<f64>, bool),
         keep: usize,
     ) {
         let n = self.keyframes.len();
@@ -183,10 +206,20 @@ impl RecentKeyframes {
                 self.keyframes.pop_back();
             }
         }
+        let depth_m = Arc::new(depth_m.clone());
+        self.nearby.push_back(NearbyKeyframe {
+            id,
+            depth_m: Arc::clone(&depth_m),
+            world_from_kf,
+            linked,
+        });
+        while self.nearby.len() > NEARBY_KEYFRAMES {
+            self.nearby.pop_front();
+        }
         self.keyframes.push_back(RecentKeyframe {
             id,
             pyramid: Rc::clone(pyramid),
-            depth_m: depth_m.clone(),
+            depth_m,
             world_from_kf,
             points: None,
         });
@@ -406,7 +439,7 @@ impl VisualOdometry {
         world_from_cur: Isometry3<f64>,
         params: &DepthAlignParams,
     ) -> Option<DepthAlignment> {
-        let keyframe = (kf.id, &kf.depth_m, world_from_kf);
+        let keyframe = (kf.id, &*kf.depth_m, world_from_kf);
         align_with_keyframe(&self.camera, frame, keyframe, world_from_cur, params)
     }
 
