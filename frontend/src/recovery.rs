@@ -155,6 +155,7 @@ pub(crate) struct RecentKeyframe {
 pub(crate) struct NearbyKeyframe {
     /// Its identifier.
     pub(crate) id: u64,
+    /// Its depth image (m along the optical axis), shared with the spaced set.
     pub(crate) depth_m: Arc<DepthImage>,
     /// Its `world_from_camera`, as the odometry placed it.
     pub(crate) world_from_kf: Isometry3<f64>,
