@@ -253,10 +253,7 @@ impl VisualOdometry {
             .across_gap(self.prev_t, frame.t_s)
             .is_some();
         let recovered = self.recover(frame, pyr, at_least, (MAX_HAMMING, RATIO), None)?;
-        let found = (
-            self.held_to_step_bounds(frame, recovered),
-            TrackingStatus::Recovered,
-        );
+        let found = (recovered, TrackingStatus::Recovered);
         if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
             return Ok(Some(r));
         }
@@ -300,10 +297,7 @@ impl VisualOdometry {
         let guided = across_gap.then_some(crate::guided::MIN_ROUGH_INLIERS);
         let bounds = (LOST_MAX_HAMMING, LOST_RATIO);
         let recovered = self.recover(frame, pyr, at_least, bounds, guided)?;
-        let found = (
-            self.held_to_step_bounds(frame, recovered),
-            TrackingStatus::Recovered,
-        );
+        let found = (recovered, TrackingStatus::Recovered);
         if let Some(r) = self.checked_orb_pose(frame, found, gyroscope, across_gap) {
             return Ok(Some(r));
         }
@@ -320,7 +314,8 @@ impl VisualOdometry {
             .map(|r| (r, TrackingStatus::DepthAligned)))
     }
 
-    /// A pose from ORB matches (`found`, with the status it earns) held to `gyroscope`
+    /// A pose from ORB matches (`found`, with the status it earns) held, when recovery
+    /// found it, to the step bounds ([`Self::held_to_step_bounds`]), then to `gyroscope`
     /// ([`Self::held_to_gyroscope`]) and, for the first frame after dropped frames
     /// (`across_gap`), checked against the frame's depth
     /// ([`VisualOdometry::checked_by_depth`]): the depth's pose (with the matches that hold
@@ -333,6 +328,10 @@ impl VisualOdometry {
         gyroscope: Option<&UnitQuaternion<f64>>,
         across_gap: bool,
     ) -> Option<(Recovered, TrackingStatus)> {
+        let found = match status {
+            TrackingStatus::Recovered => self.held_to_step_bounds(frame, found),
+            _ => found,
+        };
         let r = self.held_to_gyroscope(found, gyroscope)?;
         let by_depth = across_gap
             .then(|| self.checked_by_depth(frame, &r))
