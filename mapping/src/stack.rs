@@ -391,7 +391,6 @@ impl ElevationMapper for StackMapper {
                     up_camera,
                     model: &cfg.sensor,
                     sigmas: cfg.steep_push_sigmas,
-                    min_push_m: cfg.resolution_m as f32,
                 };
                 Some(self.pusher.push(depth_m, &f))
             }

@@ -39,9 +39,8 @@ pub struct StackConfig {
     /// Faces steeper than 45 degrees (walls, box faces, risers) are solid behind
     /// themselves: each of their pixels is moved this many depth standard deviations
     /// `sigma_d` farther along its ray before binning ([`crate::steep`]), so that depth
-    /// noise does not throw a face's points into the floor's cells before it; not where
-    /// that move would be shorter than one cell (`resolution_m`), near the sensor. 0 turns
-    /// it off (an extension of paper 000). Finite, 0 or more.
+    /// noise does not throw a face's points into the floor's cells before it. 0 turns it
+    /// off (an extension of paper 000). Finite, 0 or more.
     pub steep_push_sigmas: f32,
     /// Run the visibility check.
     pub visibility_check: bool,

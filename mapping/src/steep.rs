@@ -15,12 +15,6 @@
 //! moves: floors, ramps, box tops, pixels at a depth jump (where the slope is not the
 //! surface's) and pixels without a return.
 //!
-//! Nor does a face near the sensor, where the push would be shorter than one map cell
-//! ([`PushFrame::min_push_m`]): there the noise keeps the face's points within about a cell
-//! of the face, mostly in the cells that hold it, and those points measure those cells.
-//! Moved behind the face and taken as bounds, they left a step's edge cell to the floor's
-//! points alone, where the face runs through the cell.
-//!
 //! The surface's slope comes from the 3-D points [`RADIUS_PX`] pixels to either side of the
 //! pixel, along the row and along the column (the cross product of the two differences),
 //! against the world's up direction seen in the camera frame. Within [`RADIUS_PX`] of the
@@ -67,9 +61,6 @@ pub(crate) struct PushFrame<'a, M: ?Sized> {
     pub(crate) model: &'a M,
     /// How far a steep pixel moves, in `sigma_d`.
     pub(crate) sigmas: f32,
-    /// The shortest move made (m): the map's cell size. A steep pixel whose move would be
-    /// shorter stays where it is, a measurement like any other.
-    pub(crate) min_push_m: f32,
 }
 
 impl SteepPush {
@@ -90,8 +81,8 @@ impl SteepPush {
 
     /// Takes the output image out (to be given back with [`SteepPush::restore`]): `depth`
     /// (m, 0 or non-finite without a return) with each pixel on a steep face moved
-    /// `f.sigmas` `sigma_d` farther where that is at least `f.min_push_m`, and the number
-    /// of pixels moved. The image has `depth`'s size.
+    /// `f.sigmas` `sigma_d` farther, and the number of pixels moved. The image has
+    /// `depth`'s size.
     pub(crate) fn push<M: HeightModel + ?Sized>(
         &mut self,
         depth: &DepthImage,
@@ -105,7 +96,7 @@ impl SteepPush {
         let src = depth.as_slice();
         self.moved.clear();
         self.moved.resize(src.len(), 0);
-        let consts = Consts::new(f.camera, &f.up_camera, f.sigmas, f.min_push_m);
+        let consts = Consts::new(f.camera, &f.up_camera, f.sigmas);
         let r = consts.r;
         if w <= r || h <= r {
             // Too small for a slope: nothing moves.
@@ -133,11 +124,10 @@ impl SteepPush {
                 });
                 for u in (0..r.min(w)).chain(w.saturating_sub(r).max(r)..w) {
                     let d = src.get(v * w + u).copied().unwrap_or(0.0);
-                    let push = consts.push_m(d, f.model);
-                    let moves = steep_pixel(src, w, h, u, v, &consts) & consts.long(push);
+                    let steep = steep_pixel(src, w, h, u, v, &consts);
                     if let (Some(o), Some(m)) = (dst.get_mut(u), moved.get_mut(u)) {
-                        *o = if moves { d + push } else { d };
-                        *m = u8::from(moves);
+                        *o = if steep { consts.pushed(d, f.model) } else { d };
+                        *m = u8::from(steep);
                     }
                 }
                 moved.iter().map(|&m| usize::from(m)).sum::<usize>()
@@ -189,7 +179,7 @@ impl SteepTest {
     /// The test for a view seen by `camera` whose frame has the world's up along
     /// `up_camera`.
     pub(crate) fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>) -> Self {
-        Self(Consts::new(camera, up_camera, 0.0, 0.0))
+        Self(Consts::new(camera, up_camera, 0.0))
     }
 
     /// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`];
@@ -235,14 +225,12 @@ struct Consts {
     c: [f32; 2],
     /// How far a steep pixel moves, in `sigma_d`.
     sigmas: f32,
-    /// [`PushFrame::min_push_m`].
-    min_push_m: f32,
 }
 
 impl Consts {
     /// The constants for `camera`, the world's up `up_camera` in its frame and a push of
-    /// `sigmas` `sigma_d`, made where it is at least `min_push_m` (m).
-    fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>, sigmas: f32, min_push_m: f32) -> Self {
+    /// `sigmas` `sigma_d`.
+    fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>, sigmas: f32) -> Self {
         Self {
             r: RADIUS_PX,
             cos2: STEEP_DEG.to_radians().cos().powi(2),
@@ -250,20 +238,13 @@ impl Consts {
             inv_f: [1.0 / camera.fx() as f32, 1.0 / camera.fy() as f32],
             c: [camera.cx() as f32, camera.cy() as f32],
             sigmas,
-            min_push_m,
         }
     }
 
-    /// How far a steep pixel at depth `d` (m) would move: `sigmas` `sigma_d` (m).
+    /// Depth `d` (m) moved `sigmas` `sigma_d` farther.
     #[inline(always)]
-    fn push_m<M: HeightModel + ?Sized>(&self, d: f32, model: &M) -> f32 {
-        self.sigmas * model.depth_sigma_f32(d)
-    }
-
-    /// Whether a move of `push` (m) is made: at least [`PushFrame::min_push_m`].
-    #[inline(always)]
-    fn long(&self, push: f32) -> bool {
-        push >= self.min_push_m
+    fn pushed<M: HeightModel + ?Sized>(&self, d: f32, model: &M) -> f32 {
+        d + self.sigmas * model.depth_sigma_f32(d)
     }
 }
 
@@ -325,10 +306,9 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
                 k.up,
                 k.cos2,
             );
-            let push = k.push_m(d, model);
-            let moves = steep & k.long(push);
-            dst[i] = if moves { d + push } else { d };
-            moved[i] = u8::from(moves);
+            let pushed = k.pushed(d, model);
+            dst[i] = if steep { pushed } else { d };
+            moved[i] = u8::from(steep);
         }
     }
 }
@@ -356,7 +336,6 @@ mod tests {
             up_camera: -Vector3::y(),
             model: &model,
             sigmas: 2.0,
-            min_push_m: 0.01,
         };
         let mut push = SteepPush::default();
         let (out, n) = push.push(&image, &f);
@@ -378,19 +357,6 @@ mod tests {
             let moved = at(&after, u, v) - at(&before, u, v);
             assert!((moved - 2.0 * sigma).abs() < 1e-6, "({u}, {v}): {moved}");
         }
-    }
-
-    #[test]
-    fn a_face_whose_push_is_shorter_than_a_cell_stays() {
-        // The push is 2 sigma_d; the helper's cell is 1 cm.
-        let sigma = |d: f32| PrimeSenseHeight::default().depth_sigma_f32(d);
-        assert!(2.0 * sigma(1.0) < 0.01 && 2.0 * sigma(1.35) > 0.01);
-        let (before, after, n, moved) = pushed(|_, _| 1.0);
-        assert_eq!(n, 0);
-        assert!(moved.iter().all(|&m| m == 0));
-        assert_eq!(before.as_slice(), after.as_slice());
-        // A little farther, the same wall moves.
-        assert_eq!(pushed(|_, _| 1.35).2, 640 * 480);
     }
 
     #[test]
