@@ -118,6 +118,13 @@ impl Cell {
         self.established && self.has_estimate
     }
 
+    /// True when the column's height goes into the exported map: it is mapped and a
+    /// surface measured it. A column known from steep faces' points alone holds a lower
+    /// bound of its top, not a height, and stays out (unknown) until a surface is seen.
+    pub(crate) fn exported(&self) -> bool {
+        self.mapped() && !self.bound_only
+    }
+
     /// Adds a measurement (height `z_rel` m above the voxel's bottom, weight `w` =
     /// 1/variance) to this frame's accumulator of voxel `idx`, spilling the column's
     /// accumulators into `pool` when it gets more than [`FAST_ACC`] distinct voxels. False
@@ -365,8 +372,8 @@ mod tests {
     }
 
     /// A steep face's points bound a column's top from below: alone they make its
-    /// estimate, the first surface replaces it, and below a surface's estimate they change
-    /// nothing, while above it they count.
+    /// estimate (kept out of the exported map), the first surface replaces it, and below a
+    /// surface's estimate they change nothing, while above it they count.
     #[test]
     fn a_steep_face_bounds_the_top_from_below() {
         let cfg = StackConfig::default();
@@ -393,9 +400,11 @@ mod tests {
         frame(&mut c, 1, 5, true);
         assert!(c.mapped() && c.bound_only);
         assert!((c.h - mid(5)).abs() < 1e-6);
+        // A bound alone is no height: the column stays out of the exported map.
+        assert!(!c.exported());
         // The top, seen: it replaces the bound.
         frame(&mut c, 2, 8, false);
-        assert!(!c.bound_only);
+        assert!(!c.bound_only && c.exported());
         assert!((c.h - mid(8)).abs() < 1e-6, "{}", c.h);
         // A face below it: nothing changes.
         frame(&mut c, 3, 6, true);

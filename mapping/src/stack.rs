@@ -495,13 +495,15 @@ impl ElevationMapper for StackMapper {
     }
 
     fn export(&self) -> MapLayers {
-        // The archive holds only columns outside the window: the two never overlap.
+        // The archive holds only columns outside the window: the two never overlap. A
+        // column known from steep faces alone is a lower bound of its top, not a height:
+        // left out of both (`Cell::exported`).
         let window = self
             .window
             .cells()
             .iter()
             .enumerate()
-            .filter(|(_, c)| c.mapped())
+            .filter(|(_, c)| c.exported())
             .map(|(i, c)| {
                 let v = (c.h, c.var, f32::from(c.vitality), c.updates as f32);
                 (self.window.cell_of_index(i), v.0, v.1, v.2, v.3)
@@ -509,6 +511,7 @@ impl ElevationMapper for StackMapper {
         let archived = self
             .archive
             .iter()
+            .filter(|(_, a)| !a.bound_only)
             .map(|(k, a)| (k, a.h, a.var, f32::from(a.vitality), a.updates as f32));
         MapLayers::from_cells(self.cfg.resolution_m, archived.chain(window))
     }
