@@ -427,6 +427,39 @@ impl<'a, M: ?Sized> DepthSlice<'a, M> {
             }
         })
     }
+
+    /// The edge filter's sliver test: true when pixel `(u, v)`, of depth `d` (m), has a
+    /// neighbour along its row or its column farther than it by more than
+    /// [`EdgeFilter::threshold_m`] and a missing return one or two pixels away on the
+    /// opposite side. Such a pixel sits between a hole and a farther surface: a flying
+    /// pixel beside the hole a foreground edge leaves (docs/mapping-studies.md,
+    /// "Slivers beside holes"). Never without a filter.
+    pub(crate) fn is_sliver(&self, u: usize, v: usize, d: f64) -> bool
+    where
+        M: HeightModel,
+    {
+        let Some(e) = self.edge else {
+            return false;
+        };
+        let tau = e.threshold_m(d, self.camera.fx(), self.model.depth_sigma_m(d));
+        let (w, h) = (self.depth.width() as i64, self.depth.height() as i64);
+        let px = self.depth.as_slice();
+        let at = |du: i64, dv: i64| {
+            let (x, y) = (u as i64 + du, v as i64 + dv);
+            (x >= 0 && y >= 0 && x < w && y < h)
+                .then(|| px.get((y * w + x) as usize).copied())
+                .flatten()
+        };
+        let returned = |q: f32| q > 0.0 && q < f32::INFINITY;
+        let hole = |q: Option<f32>| q.is_some_and(|q| !returned(q));
+        let farther = |q: Option<f32>| q.is_some_and(|q| returned(q) && f64::from(q) - d > tau);
+        [(1, 0), (0, 1)].into_iter().any(|(du, dv)| {
+            [1, -1].into_iter().any(|s: i64| {
+                farther(at(s * du, s * dv))
+                    && (hole(at(-s * du, -s * dv)) || hole(at(-2 * s * du, -2 * s * dv)))
+            })
+        })
+    }
 }
 
 /// A pixel after the arithmetic pass of [`depth_slice`]: map-frame position (m), height
@@ -514,7 +547,8 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                     && var < f64::INFINITY
                     && q.x.is_finite()
                     && q.y.is_finite()
-                    && !is_edge(d, near);
+                    && !is_edge(d, near)
+                    && !s.is_sliver(u, v, d);
                 RowPoint {
                     x: q.x,
                     y: q.y,
@@ -524,7 +558,7 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                 }
             },
         ));
-        for ((p, &d), near) in pts.iter().zip(drow).zip(near()) {
+        for (u, ((p, &d), near)) in pts.iter().zip(drow).zip(near()).enumerate() {
             if p.ok {
                 sink(Ok(HeightSample {
                     x: p.x,
@@ -546,7 +580,7 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
             } else if !(p.x.is_finite() && p.y.is_finite()) {
                 Reason::NonFinite
             } else {
-                debug_assert!(is_edge(d, near));
+                debug_assert!(is_edge(d, near) || s.is_sliver(u, v, d));
                 Reason::DepthEdge
             }));
         }

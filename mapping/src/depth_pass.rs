@@ -18,6 +18,10 @@ const INSIDE: u32 = 2;
 const MAYBE_EDGE: u32 = 4;
 /// No depth jump in the pixel's neighbourhood ([`CellPoint::smooth`]).
 const SMOOTH: u32 = 8;
+/// A return is missing within two pixels and a depth within one lies beyond the pixel's
+/// by more than the edge filter's slope term: the sliver test applies
+/// (`DepthSlice::is_sliver`, whose farther neighbour lies beyond by more than that).
+const MAYBE_SLIVER: u32 = 16;
 /// The smoothness test allows the depths of the neighbourhood to span this many times the
 /// edge filter's one-pixel jump (`d / (f tan min_grazing)`), plus its noise allowance: over
 /// the 4 px across the neighbourhood, a surface seen at about 21 deg or more from the
@@ -207,13 +211,16 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             .min(rays.len())
             .min(nb.near1.len())
             .min(nb.near2.len())
-            .min(nb.span2.len());
+            .min(nb.span2.len())
+            .min(nb.hole2.len())
+            .min(nb.far1.len());
         for ((x, y), &(rx, ry)) in r.xn.iter_mut().zip(r.yn.iter_mut()).zip(rays.iter()) {
             (*x, *y) = (rx as f32, ry as f32);
         }
         // The vectorised pass: every slice has length `n`, so the bounds checks go.
         let (xs, ys) = (&r.xn[..n], &r.yn[..n]);
         let (near1, near2, spans) = (&nb.near1[..n], &nb.near2[..n], &nb.span2[..n]);
+        let (holes, far1) = (&nb.hole2[..n], &nb.far1[..n]);
         let (zs, vars, rows, cols, flags) = (
             &mut r.z[..n],
             &mut r.var[..n],
@@ -247,6 +254,11 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 + u32::from(inside) * INSIDE
                 + u32::from(maybe_edge) * MAYBE_EDGE;
         }
+        for i in 0..n {
+            let d = d_row[i];
+            let maybe_sliver = (holes[i] > 0.0) & (far1[i] - d > edge_slope * d);
+            flags[i] |= u32::from(maybe_sliver) * MAYBE_SLIVER;
+        }
         // Without an edge filter there is no bound (and the allowance would be infinite).
         if smooth && s.edge.is_some() {
             for i in 0..n {
@@ -275,7 +287,7 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         {
             let f = f & !SMOOTH;
             let keep = if f == VALID | INSIDE {
-                // The common case: valid, in the window, away from depth jumps.
+                // The common case: valid, in the window, away from depth jumps and holes.
                 true
             } else if f & VALID == 0 {
                 let ray = rays.get(u).copied().unwrap_or((f64::NAN, f64::NAN));
@@ -285,7 +297,9 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                         .unwrap_or(Reason::BadVariance),
                 );
                 false
-            } else if f & MAYBE_EDGE != 0 && s.is_edge(f64::from(d), n1, n2) {
+            } else if (f & MAYBE_EDGE != 0 && s.is_edge(f64::from(d), n1, n2))
+                || (f & MAYBE_SLIVER != 0 && s.is_sliver(u, v, f64::from(d)))
+            {
                 rej.depth_edge += 1;
                 false
             } else if f & INSIDE == 0 {

@@ -122,6 +122,9 @@ fn the_vectorised_input_stage_agrees_with_the_f64_path() {
         (6, 5, f32::INFINITY),
         (7, 5, 9.0),
         (8, 5, 0.1),
+        // A sliver: nearer than the floor beside it, a hole on its other side.
+        (40, 40, 0.0),
+        (41, 40, 1.5),
     ] {
         *depth.get_mut(u, v).unwrap() = d;
     }
@@ -313,4 +316,44 @@ fn a_mixed_pixel_beside_a_dropped_return_is_an_edge() {
     // Columns 32 (mixed), 33 (beside it) and 34 (two pixels from it) go.
     assert_eq!((rej.depth_edge, rej.no_return), (3 * 48, 48));
     assert_eq!(pts.len(), 64 * 48 - 4 * 48);
+}
+
+/// A flying pixel beside the hole a foreground edge leaves (a structured-light sensor's
+/// shadow, or dropped edge pixels), nearer than the background on its other side: no
+/// nearer pixel lies within two, so the rings keep it; the sliver test drops it.
+/// Foreground at 1 m (columns 0-20), no returns (21-27), the sliver at 1.5 m (28),
+/// background at 3 m (29 on). The foreground's last column, beside the hole, stays.
+#[test]
+fn a_sliver_between_a_hole_and_a_farther_surface_is_an_edge() {
+    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let mut depth = DepthImage::filled(64, 48, 1.0);
+    for v in 0..48u32 {
+        for u in 21..64u32 {
+            let d = match u {
+                21..=27 => 0.0,
+                28 => 1.5,
+                _ => 3.0,
+            };
+            *depth.get_mut(u, v).unwrap() = d;
+        }
+    }
+    // Identity pose: a point's map z is its depth.
+    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
+    let (pts, rej) = filtered_map_points(
+        &frame,
+        &PrimeSenseHeight::default(),
+        Some(&EdgeFilter::default()),
+    );
+    assert!(
+        pts.iter().all(|p| (p.z - 1.5).abs() > 0.25),
+        "the sliver was kept"
+    );
+    // The sliver (28) and the two background columns beside it (29, 30, the rings) go.
+    assert_eq!((rej.depth_edge, rej.no_return), (3 * 48, 7 * 48));
+    assert_eq!(pts.len(), 64 * 48 - 10 * 48);
+    // Column 20, the foreground's edge beside the hole, is kept (z = 1 m).
+    assert_eq!(
+        pts.iter().filter(|p| (p.z - 1.0).abs() < 0.1).count(),
+        21 * 48
+    );
 }

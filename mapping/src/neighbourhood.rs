@@ -1,6 +1,8 @@
 //! Each depth pixel's neighbourhood, row by row: the nearest depths one and two pixels
-//! around (the depth-edge filter's inputs) and the span of the 5 x 5 neighbourhood (the
-//! smoothness test's), from one branch-free pass over five rows.
+//! around (the depth-edge filter's inputs), the farthest depth one pixel around and
+//! whether a return is missing within two (where the filter's sliver test looks), and the
+//! span of the 5 x 5 neighbourhood (the smoothness test's), from one branch-free pass over
+//! five rows.
 
 use stride_core::image::DepthImage;
 
@@ -19,19 +21,32 @@ pub(crate) struct Neighbourhood {
     pub(crate) near2: Vec<f32>,
     /// Span of the depths within two pixels.
     pub(crate) span2: Vec<f32>,
+    /// 1 where a pixel within two (the 5 x 5 neighbourhood, clipped at the image's
+    /// borders) has no return, else 0 (everywhere 0 without an edge filter).
+    pub(crate) hole2: Vec<f32>,
+    /// Farthest depth within one pixel (0 where there is none, and everywhere without an
+    /// edge filter).
+    pub(crate) far1: Vec<f32>,
     /// Scratch: per column, the minimum over the three middle rows, the minimum and the
-    /// maximum over all five, each padded with two neutral values at both ends.
-    cols: [Vec<f32>; 3],
+    /// maximum over all five, whether one of the five has no return, and the maximum over
+    /// the three middle rows, each padded with two neutral values at both ends.
+    cols: [Vec<f32>; 5],
 }
 
 impl Neighbourhood {
     /// Bytes held.
     pub(crate) fn memory_bytes(&self) -> usize {
-        [&self.near1, &self.near2, &self.span2]
-            .into_iter()
-            .chain(&self.cols)
-            .map(|v| v.capacity() * std::mem::size_of::<f32>())
-            .sum()
+        [
+            &self.near1,
+            &self.near2,
+            &self.span2,
+            &self.hole2,
+            &self.far1,
+        ]
+        .into_iter()
+        .chain(&self.cols)
+        .map(|v| v.capacity() * std::mem::size_of::<f32>())
+        .sum()
     }
 
     /// Fills the fields for row `v` of `depth` (`span` on request) in one pass over its five
@@ -52,13 +67,17 @@ impl Neighbourhood {
         const R: usize = 2;
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let px = depth.as_slice();
-        let [min3, min5, max5] = &mut self.cols;
+        let [min3, min5, max5, holes5, max3] = &mut self.cols;
         min3.clear();
         min3.resize(w + 2 * R, f32::INFINITY);
         min5.clear();
         min5.resize(w + 2 * R, f32::INFINITY);
         max5.clear();
         max5.resize(w + 2 * R, 0.0);
+        holes5.clear();
+        holes5.resize(w + 2 * R, 0.0);
+        max3.clear();
+        max3.resize(w + 2 * R, 0.0);
         for y in v.saturating_sub(R)..(v + R + 1).min(h) {
             let Some(row) = px.get(y * w..(y + 1) * w) else {
                 continue;
@@ -68,6 +87,16 @@ impl Neighbourhood {
             for (m, &d) in lo.iter_mut().skip(R).zip(row) {
                 let ok = (d > 0.0) & (d < f32::INFINITY);
                 *m = min_of(*m, if ok { d } else { f32::INFINITY });
+            }
+            for (m, &d) in holes5.iter_mut().skip(R).zip(row) {
+                let ok = (d > 0.0) & (d < f32::INFINITY);
+                *m = max_of(*m, if ok { 0.0 } else { 1.0 });
+            }
+            if middle {
+                for (m, &d) in max3.iter_mut().skip(R).zip(row) {
+                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    *m = max_of(*m, if ok { d } else { 0.0 });
+                }
             }
             if span {
                 for (m, &d) in max5.iter_mut().skip(R).zip(row) {
@@ -83,6 +112,8 @@ impl Neighbourhood {
         // slice at a time.
         window_fold(&mut self.near1, min3, 1..4, w, min_of);
         window_fold(&mut self.near2, min5, 0..5, w, min_of);
+        window_fold(&mut self.hole2, holes5, 0..5, w, max_of);
+        window_fold(&mut self.far1, max3, 1..4, w, max_of);
         if span {
             window_fold(&mut self.span2, max5, 0..5, w, max_of);
             for (s, &lo) in self.span2.iter_mut().zip(&self.near2) {
@@ -94,11 +125,15 @@ impl Neighbourhood {
         }
     }
 
-    /// Infinity everywhere (no edge filter): `w` pixels.
+    /// Infinity everywhere and no hole (no edge filter): `w` pixels.
     pub(crate) fn none(&mut self, w: usize) {
         for f in [&mut self.near1, &mut self.near2, &mut self.span2] {
             f.clear();
             f.resize(w, f32::INFINITY);
+        }
+        for f in [&mut self.hole2, &mut self.far1] {
+            f.clear();
+            f.resize(w, 0.0);
         }
     }
 }
