@@ -450,7 +450,7 @@ impl<'a, M: ?Sized> DepthSlice<'a, M> {
                 .then(|| px.get((y * w + x) as usize).copied())
                 .flatten()
         };
-        let returned = |q: f32| q > 0.0 && q < f32::INFINITY;
+        let returned = crate::neighbourhood::returned;
         let hole = |q: Option<f32>| q.is_some_and(|q| !returned(q));
         let farther = |q: Option<f32>| q.is_some_and(|q| returned(q) && f64::from(q) - d > tau);
         [(1, 0), (0, 1)].into_iter().any(|(du, dv)| {
@@ -548,7 +548,8 @@ pub(crate) fn depth_slice<M: HeightModel + ?Sized, S: FnMut(Result<HeightSample,
                     && q.x.is_finite()
                     && q.y.is_finite()
                     && !is_edge(d, near)
-                    && !s.is_sliver(u, v, d);
+                    // The test reads the image only beside a hole, as the f32 stage does.
+                    && !(nearest.hole2.get(u).is_some_and(|&h| h > 0.0) && s.is_sliver(u, v, d));
                 RowPoint {
                     x: q.x,
                     y: q.y,

@@ -290,25 +290,12 @@ fn points_from_pixels_near_a_depth_jump_are_not_smooth() {
 /// background at 3 m (33 on); the first ring alone keeps it.
 #[test]
 fn a_mixed_pixel_beside_a_dropped_return_is_an_edge() {
-    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
-    let mut depth = DepthImage::filled(64, 48, 1.0);
-    for v in 0..48u32 {
-        for u in 31..64u32 {
-            let d = match u {
-                31 => 0.0,
-                32 => 2.0,
-                _ => 3.0,
-            };
-            *depth.get_mut(u, v).unwrap() = d;
-        }
-    }
-    // Identity pose: a point's map z is its depth.
-    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
-    let (pts, rej) = filtered_map_points(
-        &frame,
-        &PrimeSenseHeight::default(),
-        Some(&EdgeFilter::default()),
-    );
+    let (pts, rej) = columns_filtered(|u| match u {
+        0..=30 => 1.0,
+        31 => 0.0,
+        32 => 2.0,
+        _ => 3.0,
+    });
     assert!(
         pts.iter().all(|p| (p.z - 2.0).abs() > 0.5),
         "the mixed pixel was kept"
@@ -325,25 +312,12 @@ fn a_mixed_pixel_beside_a_dropped_return_is_an_edge() {
 /// background at 3 m (29 on). The foreground's last column, beside the hole, stays.
 #[test]
 fn a_sliver_between_a_hole_and_a_farther_surface_is_an_edge() {
-    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
-    let mut depth = DepthImage::filled(64, 48, 1.0);
-    for v in 0..48u32 {
-        for u in 21..64u32 {
-            let d = match u {
-                21..=27 => 0.0,
-                28 => 1.5,
-                _ => 3.0,
-            };
-            *depth.get_mut(u, v).unwrap() = d;
-        }
-    }
-    // Identity pose: a point's map z is its depth.
-    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
-    let (pts, rej) = filtered_map_points(
-        &frame,
-        &PrimeSenseHeight::default(),
-        Some(&EdgeFilter::default()),
-    );
+    let (pts, rej) = columns_filtered(|u| match u {
+        0..=20 => 1.0,
+        21..=27 => 0.0,
+        28 => 1.5,
+        _ => 3.0,
+    });
     assert!(
         pts.iter().all(|p| (p.z - 1.5).abs() > 0.25),
         "the sliver was kept"
@@ -356,4 +330,25 @@ fn a_sliver_between_a_hole_and_a_farther_surface_is_an_edge() {
         pts.iter().filter(|p| (p.z - 1.0).abs() < 0.1).count(),
         21 * 48
     );
+}
+
+/// The points and rejections of the default edge filter on a 64 x 48 depth image whose
+/// column `u` holds `depth_of(u)` (m) in every row, seen at the identity pose (a point's map
+/// z is its depth).
+fn columns_filtered(
+    depth_of: impl Fn(u32) -> f32,
+) -> (Vec<crate::input::HeightSample>, Rejections) {
+    let cam = PinholeCamera::new(52.5, 52.0, 31.5, 23.5, 64, 48).unwrap();
+    let mut depth = DepthImage::filled(64, 48, 0.0);
+    for v in 0..48u32 {
+        for u in 0..64u32 {
+            *depth.get_mut(u, v).unwrap() = depth_of(u);
+        }
+    }
+    let frame = SensorFrame::depth(&depth, &cam, Isometry3::identity(), 0.0).unwrap();
+    filtered_map_points(
+        &frame,
+        &PrimeSenseHeight::default(),
+        Some(&EdgeFilter::default()),
+    )
 }

@@ -85,22 +85,22 @@ impl Neighbourhood {
             let middle = y + 1 >= v && y <= v + 1;
             let lo = if middle { &mut *min3 } else { &mut *min5 };
             for (m, &d) in lo.iter_mut().skip(R).zip(row) {
-                let ok = (d > 0.0) & (d < f32::INFINITY);
+                let ok = returned(d);
                 *m = min_of(*m, if ok { d } else { f32::INFINITY });
             }
             for (m, &d) in holes5.iter_mut().skip(R).zip(row) {
-                let ok = (d > 0.0) & (d < f32::INFINITY);
+                let ok = returned(d);
                 *m = max_of(*m, if ok { 0.0 } else { 1.0 });
             }
             if middle {
                 for (m, &d) in max3.iter_mut().skip(R).zip(row) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    let ok = returned(d);
                     *m = max_of(*m, if ok { d } else { 0.0 });
                 }
             }
             if span {
                 for (m, &d) in max5.iter_mut().skip(R).zip(row) {
-                    let ok = (d > 0.0) & (d < f32::INFINITY);
+                    let ok = returned(d);
                     *m = max_of(*m, if ok { d } else { 0.0 });
                 }
             }
@@ -153,6 +153,13 @@ impl pulp::WithSimd for Fill<'_> {
     fn with_simd<S: pulp::Simd>(self, _: S) {
         self.nb.fill_body(self.depth, self.v, self.span);
     }
+}
+
+/// Whether a depth (m) is a return: positive and finite (0, NaN and the infinities are
+/// missing returns). Free of branches, for the vectorised passes.
+#[inline(always)]
+pub(crate) fn returned(d: f32) -> bool {
+    (d > 0.0) & (d < f32::INFINITY)
 }
 
 /// The smaller of two depths that are never NaN (missing returns are infinity or 0 here):
