@@ -16,7 +16,7 @@
 //! were. A pixel without a return stays without one.
 
 use crate::error::MappingError;
-use crate::input::HeightModel;
+use crate::input::{F32Consts, HeightModel};
 use rayon::prelude::*;
 use stride_core::image::DepthImage;
 
@@ -135,7 +135,8 @@ impl Smoother {
                     tol,
                     d,
                     k,
-                    model,
+                    sigma: model.f32_consts(),
+                    model: std::marker::PhantomData::<&M>,
                 });
             });
         let (inverse, tol) = (&self.inverse, &self.tol);
@@ -200,7 +201,10 @@ struct InvertRow<'a, M: ?Sized> {
     tol: &'a mut [f32],
     d: &'a [f32],
     k: f32,
-    model: &'a M,
+    /// The sensor model's constants ([`HeightModel::f32_consts`]), by value so that the
+    /// loop holds them in registers.
+    sigma: F32Consts,
+    model: std::marker::PhantomData<&'a M>,
 }
 
 impl<M: HeightModel + ?Sized> pulp::WithSimd for InvertRow<'_, M> {
@@ -213,13 +217,14 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for InvertRow<'_, M> {
             tol,
             d,
             k,
-            model,
+            sigma,
+            ..
         } = self;
         for ((q, t), &d) in q.iter_mut().zip(tol.iter_mut()).zip(d) {
             let ok = (d > 0.0) & (d < f32::INFINITY);
             let inv = 1.0 / d;
             *q = if ok { inv } else { 0.0 };
-            let t_ok = k * model.depth_sigma_f32(d) * inv * inv;
+            let t_ok = k * M::depth_sigma_f32(&sigma, d) * inv * inv;
             *t = if ok { t_ok } else { 0.0 };
         }
     }

@@ -174,6 +174,7 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
         r3: [pl.r3.x as f32, pl.r3.y as f32, pl.r3.z as f32],
         inv_fx: (1.0 / s.camera.fx()) as f32,
         inv_fy: (1.0 / s.camera.fy()) as f32,
+        model: s.model.f32_consts(),
     };
     let f_px = s.camera.fx();
     let edge_slope = s
@@ -240,7 +241,7 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             rows[i] = (r10 * px + r11 * py + r12 * d + ty) * inv_cell;
         }
         for i in 0..n {
-            vars[i] = s.model.pixel_variance_f32(&consts, xs[i], ys[i], d_row[i]);
+            vars[i] = M::pixel_variance_f32(&consts, xs[i], ys[i], d_row[i]);
         }
         for i in 0..n {
             let (d, var) = (d_row[i], vars[i]);
@@ -265,7 +266,8 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 // The span allowed across the neighbourhood: from the edge filter's bound.
                 let d = d_row[i];
                 let ok = spans[i]
-                    <= SMOOTH_SPAN * edge_slope * d + edge_noise * s.model.depth_sigma_f32(d);
+                    <= SMOOTH_SPAN * edge_slope * d
+                        + edge_noise * M::depth_sigma_f32(&consts.model, d);
                 flags[i] |= u32::from(ok) * SMOOTH;
             }
         }

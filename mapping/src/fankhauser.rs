@@ -13,8 +13,8 @@
 
 use crate::error::{self, MappingError};
 use crate::input::{
-    prepare_binned, Binned, Binning, DepthPixel, EdgeFilter, HeightModel, RayCache, SensorFrame,
-    VarianceConsts,
+    prepare_binned, Binned, Binning, DepthPixel, EdgeFilter, F32Consts, HeightModel, RayCache,
+    SensorFrame, VarianceConsts,
 };
 use crate::window::Window;
 use crate::{ElevationMapper, MapLayers, UpdateStats};
@@ -84,12 +84,25 @@ impl HeightModel for KinectNguyenHeight {
         self.normal_a + self.normal_b * (d - self.normal_c).powi(2)
     }
 
+    /// `[normal_a, normal_b, normal_c, lateral, 0, 0, 0, 0]`.
+    fn f32_consts(&self) -> F32Consts {
+        let (a, b, c, l) = (self.normal_a, self.normal_b, self.normal_c, self.lateral);
+        F32Consts([a, b, c, l, 0.0, 0.0, 0.0, 0.0].map(|v| v as f32))
+    }
+
     #[inline(always)]
-    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+    fn depth_sigma_f32(c: &F32Consts, d: f32) -> f32 {
+        let [a, b, c, ..] = c.0;
+        a + b * (d - c) * (d - c)
+    }
+
+    #[inline(always)]
+    fn pixel_variance_f32(k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+        let [a, b, c, l, ..] = k.model.0;
         let distance = d * (xn * xn + yn * yn + 1.0).sqrt();
-        let e = distance - self.normal_c as f32;
-        let normal = self.normal_a as f32 + self.normal_b as f32 * e * e;
-        let lateral = self.lateral as f32 * distance;
+        let e = distance - c;
+        let normal = a + b * e * e;
+        let lateral = l * distance;
         let [r3x, r3y, r3z] = k.r3;
         lateral * lateral * (r3x * r3x + r3y * r3y) + normal * normal * r3z * r3z
     }

@@ -144,16 +144,24 @@ pub trait HeightModel: Sync {
     fn range_m(&self) -> (f64, f64);
     /// Standard deviation of a depth measurement `d` (m) along the optical axis (m).
     fn depth_sigma_m(&self, d: f64) -> f64;
-    /// [`HeightModel::depth_sigma_m`] in f32, for the vectorised input stage (override it
-    /// with branch-free f32 arithmetic).
-    fn depth_sigma_f32(&self, d: f32) -> f32 {
-        self.depth_sigma_m(f64::from(d)) as f32
-    }
+    /// The model's constants in f32 for the vectorised loops ([`HeightModel::depth_sigma_f32`],
+    /// [`HeightModel::pixel_variance_f32`]), copied out once per frame.
+    fn f32_consts(&self) -> F32Consts;
+    /// [`HeightModel::depth_sigma_m`] in f32 from the constants [`HeightModel::f32_consts`]
+    /// gave, for the vectorised input stage: branch-free f32 arithmetic that reads only `c`.
+    fn depth_sigma_f32(c: &F32Consts, d: f32) -> f32;
     /// [`HeightModel::pixel_variance`] in f32, for the mappers' vectorised input stage: a
     /// pixel with undistorted normalised coordinates `(xn, yn)` and depth `d` (m). Must be
-    /// free of branches and calls that stop the vectorisation.
-    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32;
+    /// free of branches and calls that stop the vectorisation, and read only `k`.
+    fn pixel_variance_f32(k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32;
 }
+
+/// A height model's constants in f32, laid out as its [`HeightModel::f32_consts`] says.
+/// The vectorised loops take them by value: read through a reference to the model, they
+/// were loaded and converted from f64 again at every pixel (the compiler cannot tell that
+/// the loop's stores leave the model alone), which kept those loops scalar.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct F32Consts(pub [f32; 8]);
 
 /// A frame's constants of [`HeightModel::pixel_variance_f32`].
 #[derive(Debug, Clone, Copy)]
@@ -164,6 +172,8 @@ pub struct VarianceConsts {
     pub inv_fx: f32,
     /// See `inv_fx`.
     pub inv_fy: f32,
+    /// The model's own constants ([`HeightModel::f32_consts`]).
+    pub model: F32Consts,
 }
 
 /// A front-end filter of depth images against flying pixels (returns between a foreground
@@ -288,22 +298,41 @@ impl HeightModel for PrimeSenseHeight {
         self.model.sigma_d(d)
     }
 
-    #[inline(always)]
-    fn depth_sigma_f32(&self, d: f32) -> f32 {
+    /// `[k1, k2, k3, k4, min_sigma_d_m, var_u_px2, var_v_px2, 0]`: the depth noise's cubic,
+    /// its floor and the pixel noise.
+    fn f32_consts(&self) -> F32Consts {
         let m = &self.model;
-        let [k1, k2, k3, k4] = m.depth_sigma_coeffs.map(|c| c as f32);
-        (((k1 * d + k2) * d + k3) * d + k4).max(m.min_sigma_d_m as f32)
+        let [k1, k2, k3, k4] = m.depth_sigma_coeffs;
+        F32Consts(
+            [
+                k1,
+                k2,
+                k3,
+                k4,
+                m.min_sigma_d_m,
+                m.var_u_px2,
+                m.var_v_px2,
+                0.0,
+            ]
+            .map(|c| c as f32),
+        )
     }
 
     #[inline(always)]
-    fn pixel_variance_f32(&self, k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
-        let m = &self.model;
-        let s = self.depth_sigma_f32(d);
+    fn depth_sigma_f32(c: &F32Consts, d: f32) -> f32 {
+        let [k1, k2, k3, k4, floor, ..] = c.0;
+        (((k1 * d + k2) * d + k3) * d + k4).max(floor)
+    }
+
+    #[inline(always)]
+    fn pixel_variance_f32(k: &VarianceConsts, xn: f32, yn: f32, d: f32) -> f32 {
+        let [.., var_u, var_v, _] = k.model.0;
+        let s = Self::depth_sigma_f32(&k.model, d);
         let [r3x, r3y, r3z] = k.r3;
         let a = r3x * d * k.inv_fx;
         let b = r3y * d * k.inv_fy;
         let c = r3x * xn + r3y * yn + r3z;
-        m.var_u_px2 as f32 * a * a + m.var_v_px2 as f32 * b * b + s * s * c * c
+        var_u * a * a + var_v * b * b + s * s * c * c
     }
 }
 

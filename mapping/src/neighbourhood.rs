@@ -162,27 +162,23 @@ pub(crate) fn returned(d: f32) -> bool {
     (d > 0.0) & (d < f32::INFINITY)
 }
 
-/// The smaller of two depths that are never NaN (missing returns are infinity or 0 here):
-/// a plain comparison, which compiles to one vector instruction, where `f32::min`'s NaN
-/// rule adds a test and a blend per lane (docs/mapping.md, "Minimum and maximum without
-/// the NaN rule").
+/// The smaller of two depths that are never NaN nor negative (missing returns are infinity
+/// or +0 here). For such floats the order of their bit patterns as unsigned integers is the
+/// order of their values, so this is one integer minimum per lane. A comparison and a
+/// select compiled, in the read-modify-write loops of [`Neighbourhood::fill`], to a masked
+/// store, which AMD's cores run microcoded, many times slower (docs/mapping.md, "Minimum
+/// and maximum as integers").
 #[inline(always)]
 pub(crate) fn min_of(a: f32, b: f32) -> f32 {
-    if b < a {
-        b
-    } else {
-        a
-    }
+    debug_assert!(a >= 0.0 && b >= 0.0 && a.is_sign_positive() && b.is_sign_positive());
+    f32::from_bits(a.to_bits().min(b.to_bits()))
 }
 
-/// The larger of two depths that are never NaN (see [`min_of`]).
+/// The larger of two depths that are never NaN nor negative (see [`min_of`]).
 #[inline(always)]
 fn max_of(a: f32, b: f32) -> f32 {
-    if b > a {
-        b
-    } else {
-        a
-    }
+    debug_assert!(a >= 0.0 && b >= 0.0 && a.is_sign_positive() && b.is_sign_positive());
+    f32::from_bits(a.to_bits().max(b.to_bits()))
 }
 
 /// `out[i] = pick` over `padded[i + k]` for `k` in `ks`, for `i` below `w`: each pass an

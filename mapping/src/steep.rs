@@ -22,7 +22,7 @@
 //! wall's highest points are in the image's top rows, and unmoved they would lift the
 //! floor's cells before it to the wall's height.
 
-use crate::input::HeightModel;
+use crate::input::{F32Consts, HeightModel};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use stride_core::camera::PinholeCamera;
@@ -96,7 +96,7 @@ impl SteepPush {
         let src = depth.as_slice();
         self.moved.clear();
         self.moved.resize(src.len(), 0);
-        let consts = Consts::new(f.camera, &f.up_camera, f.sigmas);
+        let consts = Consts::new(f.camera, &f.up_camera, f.sigmas, f.model.f32_consts());
         let r = consts.r;
         if w <= r || h <= r {
             // Too small for a slope: nothing moves.
@@ -119,14 +119,14 @@ impl SteepPush {
                     ys,
                     dst: &mut *dst,
                     moved: &mut *moved,
-                    k: &consts,
-                    model: f.model,
+                    k: consts,
+                    model: std::marker::PhantomData::<&M>,
                 });
                 for u in (0..r.min(w)).chain(w.saturating_sub(r).max(r)..w) {
                     let d = src.get(v * w + u).copied().unwrap_or(0.0);
                     let steep = steep_pixel(src, w, h, u, v, &consts);
                     if let (Some(o), Some(m)) = (dst.get_mut(u), moved.get_mut(u)) {
-                        *o = if steep { consts.pushed(d, f.model) } else { d };
+                        *o = if steep { consts.pushed::<M>(d) } else { d };
                         *m = u8::from(steep);
                     }
                 }
@@ -179,7 +179,7 @@ impl SteepTest {
     /// The test for a view seen by `camera` whose frame has the world's up along
     /// `up_camera`.
     pub(crate) fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>) -> Self {
-        Self(Consts::new(camera, up_camera, 0.0))
+        Self(Consts::new(camera, up_camera, 0.0, F32Consts::default()))
     }
 
     /// Whether pixel `(u, v)` of `depth` (m) lies on a face steeper than [`STEEP_DEG`];
@@ -212,7 +212,9 @@ fn steep_pixel(src: &[f32], w: usize, h: usize, u: usize, v: usize, k: &Consts) 
     )
 }
 
-/// A frame's constants of [`PushRow`].
+/// A frame's constants of [`PushRow`], taken by value so that its loop holds them in
+/// registers.
+#[derive(Debug, Clone, Copy)]
 struct Consts {
     /// [`RADIUS_PX`].
     r: usize,
@@ -225,12 +227,19 @@ struct Consts {
     c: [f32; 2],
     /// How far a steep pixel moves, in `sigma_d`.
     sigmas: f32,
+    /// The sensor model's constants ([`HeightModel::f32_consts`]).
+    model: F32Consts,
 }
 
 impl Consts {
     /// The constants for `camera`, the world's up `up_camera` in its frame and a push of
-    /// `sigmas` `sigma_d`.
-    fn new(camera: &PinholeCamera, up_camera: &Vector3<f64>, sigmas: f32) -> Self {
+    /// `sigmas` `sigma_d` of the sensor model whose constants are `model`.
+    fn new(
+        camera: &PinholeCamera,
+        up_camera: &Vector3<f64>,
+        sigmas: f32,
+        model: F32Consts,
+    ) -> Self {
         Self {
             r: RADIUS_PX,
             cos2: STEEP_DEG.to_radians().cos().powi(2),
@@ -238,13 +247,14 @@ impl Consts {
             inv_f: [1.0 / camera.fx() as f32, 1.0 / camera.fy() as f32],
             c: [camera.cx() as f32, camera.cy() as f32],
             sigmas,
+            model,
         }
     }
 
     /// Depth `d` (m) moved `sigmas` `sigma_d` farther.
     #[inline(always)]
-    fn pushed<M: HeightModel + ?Sized>(&self, d: f32, model: &M) -> f32 {
-        d + self.sigmas * model.depth_sigma_f32(d)
+    fn pushed<M: HeightModel + ?Sized>(&self, d: f32) -> f32 {
+        d + self.sigmas * M::depth_sigma_f32(&self.model, d)
     }
 }
 
@@ -257,8 +267,8 @@ struct PushRow<'a, M: ?Sized> {
     ys: [f32; 3],
     dst: &'a mut [f32],
     moved: &'a mut [u8],
-    k: &'a Consts,
-    model: &'a M,
+    k: Consts,
+    model: std::marker::PhantomData<&'a M>,
 }
 
 impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
@@ -272,7 +282,7 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
             dst,
             moved,
             k,
-            model,
+            model: _,
         } = self;
         let r = k.r;
         let w = row.len().min(above.len()).min(below.len());
@@ -306,7 +316,7 @@ impl<M: HeightModel + ?Sized> pulp::WithSimd for PushRow<'_, M> {
                 k.up,
                 k.cos2,
             );
-            let pushed = k.pushed(d, model);
+            let pushed = k.pushed::<M>(d);
             dst[i] = if steep { pushed } else { d };
             moved[i] = u8::from(steep);
         }
@@ -349,7 +359,8 @@ mod tests {
     #[test]
     fn a_wall_seen_head_on_moves_back_by_its_noise() {
         let (before, after, n, _) = pushed(|_, _| 2.0);
-        let sigma = PrimeSenseHeight::default().depth_sigma_f32(2.0);
+        let sigma =
+            PrimeSenseHeight::depth_sigma_f32(&PrimeSenseHeight::default().f32_consts(), 2.0);
         // Every pixel moves, the border too (its own depth stands in for the missing side):
         // a wall's top rows are its highest points.
         assert_eq!(n, 640 * 480);
