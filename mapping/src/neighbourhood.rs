@@ -62,60 +62,65 @@ impl Neighbourhood {
     }
 
     /// The body of [`Neighbourhood::fill`], inlined into each instruction set's copy.
+    ///
+    /// Every loop writes values computed from other buffers, never a minimum or maximum of
+    /// the buffer it writes: such an update, where one choice keeps the old value, compiles
+    /// to a masked store, which AMD's cores run microcoded (docs/mapping.md, "Minimum and
+    /// maximum as integers").
     #[inline(always)]
     fn fill_body(&mut self, depth: &DepthImage, v: usize, span: bool) {
         const R: usize = 2;
         let (w, h) = (depth.width() as usize, depth.height() as usize);
         let px = depth.as_slice();
         let [min3, min5, max5, holes5, max3] = &mut self.cols;
-        min3.clear();
-        min3.resize(w + 2 * R, f32::INFINITY);
-        min5.clear();
-        min5.resize(w + 2 * R, f32::INFINITY);
-        max5.clear();
-        max5.resize(w + 2 * R, 0.0);
-        holes5.clear();
-        holes5.resize(w + 2 * R, 0.0);
-        max3.clear();
-        max3.resize(w + 2 * R, 0.0);
-        for y in v.saturating_sub(R)..(v + R + 1).min(h) {
-            let Some(row) = px.get(y * w..(y + 1) * w) else {
-                continue;
-            };
-            let middle = y + 1 >= v && y <= v + 1;
-            let lo = if middle { &mut *min3 } else { &mut *min5 };
-            for (m, &d) in lo.iter_mut().skip(R).zip(row) {
-                let ok = returned(d);
-                *m = min_of(*m, if ok { d } else { f32::INFINITY });
-            }
-            for (m, &d) in holes5.iter_mut().skip(R).zip(row) {
-                let ok = returned(d);
-                *m = max_of(*m, if ok { 0.0 } else { 1.0 });
-            }
-            if middle {
-                for (m, &d) in max3.iter_mut().skip(R).zip(row) {
-                    let ok = returned(d);
-                    *m = max_of(*m, if ok { d } else { 0.0 });
-                }
-            }
-            if span {
-                for (m, &d) in max5.iter_mut().skip(R).zip(row) {
-                    let ok = returned(d);
-                    *m = max_of(*m, if ok { d } else { 0.0 });
-                }
-            }
+        for (col, neutral) in [
+            (&mut *min3, f32::INFINITY),
+            (&mut *min5, f32::INFINITY),
+            (&mut *max5, 0.0),
+            (&mut *holes5, 0.0),
+            (&mut *max3, 0.0),
+        ] {
+            col.clear();
+            col.resize(w + 2 * R, neutral);
         }
-        for (a, &b) in min5.iter_mut().zip(min3.iter()) {
-            *a = min_of(*a, b);
+        // The five rows around `v`; a row past the image's border is the pixel's own, which
+        // changes no minimum, maximum or hole.
+        let row = |y: usize| px.get(y * w..(y + 1) * w).filter(|_| y < h);
+        let centre = row(v).unwrap_or(&[]);
+        let at = |dy: isize| v.checked_add_signed(dy).and_then(&row).unwrap_or(centre);
+        let rows = [at(-2), at(-1), centre, at(1), at(2)];
+        let n = rows.iter().map(|r| r.len()).min().unwrap_or(0);
+        let [r0, r1, r2, r3, r4] = rows.map(|r| r.get(..n).unwrap_or(&[]));
+        // Padded by R on both sides, so pixel i is entry i + R.
+        let (lo3, lo5) = (&mut min3[R..R + n], &mut min5[R..R + n]);
+        let (hi3, hi5, any) = (
+            &mut max3[R..R + n],
+            &mut max5[R..R + n],
+            &mut holes5[R..R + n],
+        );
+        for i in 0..n {
+            let d = [r0[i], r1[i], r2[i], r3[i], r4[i]];
+            let near = d.map(|d| if returned(d) { d } else { f32::INFINITY });
+            let far = d.map(|d| if returned(d) { d } else { 0.0 });
+            let hole = d.map(|d| if returned(d) { 0.0 } else { 1.0 });
+            let m3 = min_of(min_of(near[1], near[2]), near[3]);
+            lo3[i] = m3;
+            lo5[i] = min_of(min_of(m3, near[0]), near[4]);
+            let x3 = max_of(max_of(far[1], far[2]), far[3]);
+            hi3[i] = x3;
+            hi5[i] = max_of(max_of(x3, far[0]), far[4]);
+            any[i] = max_of(
+                max_of(max_of(hole[0], hole[1]), max_of(hole[2], hole[3])),
+                hole[4],
+            );
         }
-        // Windows of three (around the middle of five) and of five columns, one shifted
-        // slice at a time.
-        window_fold(&mut self.near1, min3, 1..4, w, min_of);
-        window_fold(&mut self.near2, min5, 0..5, w, min_of);
-        window_fold(&mut self.hole2, holes5, 0..5, w, max_of);
-        window_fold(&mut self.far1, max3, 1..4, w, max_of);
+        // Windows of three (around the middle of five) and of five columns.
+        window_fold::<3>(&mut self.near1, min3, 1, w, min_of);
+        window_fold::<5>(&mut self.near2, min5, 0, w, min_of);
+        window_fold::<5>(&mut self.hole2, holes5, 0, w, max_of);
+        window_fold::<3>(&mut self.far1, max3, 1, w, max_of);
         if span {
-            window_fold(&mut self.span2, max5, 0..5, w, max_of);
+            window_fold::<5>(&mut self.span2, max5, 0, w, max_of);
             for (s, &lo) in self.span2.iter_mut().zip(&self.near2) {
                 *s = (*s - lo).max(0.0);
             }
@@ -181,24 +186,28 @@ fn max_of(a: f32, b: f32) -> f32 {
     f32::from_bits(a.to_bits().max(b.to_bits()))
 }
 
-/// `out[i] = pick` over `padded[i + k]` for `k` in `ks`, for `i` below `w`: each pass an
-/// element-wise `pick` of two slices, which vectorises.
+/// `out[i] = pick` over `padded[i + first + k]` for `k` below `N`, for `i` below `w`, in
+/// one pass that writes each entry once (see [`Neighbourhood::fill_body`]).
 #[inline(always)]
-fn window_fold(
+fn window_fold<const N: usize>(
     out: &mut Vec<f32>,
     padded: &[f32],
-    mut ks: std::ops::Range<usize>,
+    first: usize,
     w: usize,
     pick: fn(f32, f32) -> f32,
 ) {
     out.clear();
-    let first = ks.next().unwrap_or(0);
-    out.extend_from_slice(padded.get(first..first + w).unwrap_or(&[]));
     out.resize(w, f32::INFINITY);
-    for k in ks {
-        for (o, &c) in out.iter_mut().zip(padded.get(k..).unwrap_or(&[])) {
-            *o = pick(*o, c);
+    let shifted: [&[f32]; N] =
+        std::array::from_fn(|k| padded.get(first + k..first + k + w).unwrap_or(&[]));
+    let n = shifted.iter().map(|s| s.len()).min().unwrap_or(0);
+    let shifted = shifted.map(|s| s.get(..n).unwrap_or(&[]));
+    for (i, o) in out.iter_mut().take(n).enumerate() {
+        let mut m = shifted[0][i];
+        for s in &shifted[1..] {
+            m = pick(m, s[i]);
         }
+        *o = m;
     }
 }
 
@@ -240,5 +249,67 @@ mod tests {
             .chain(&near2)
             .chain(&span2)
             .all(|v| !v.is_nan()));
+    }
+
+    /// Every channel equals its definition, computed pixel by pixel over the clipped window,
+    /// on an image with holes in every encoding, at the borders too, for each row.
+    #[test]
+    fn every_channel_is_its_window_over_the_clipped_neighbourhood() {
+        let (w, h) = (13u32, 7u32);
+        let mut depth = DepthImage::filled(w, h, 0.0);
+        let mut state = 12345u32;
+        for v in 0..h {
+            for u in 0..w {
+                state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                let r = (state >> 8) as f32 / (1u32 << 24) as f32;
+                let d = match (state >> 4) % 9 {
+                    0 => 0.0,
+                    1 => f32::NAN,
+                    2 => f32::INFINITY,
+                    _ => 0.5 + 3.0 * r,
+                };
+                *depth.get_mut(u, v).unwrap() = d;
+            }
+        }
+        let got = |u: i64, v: i64| -> Option<f32> {
+            let inside = u >= 0 && v >= 0 && u < i64::from(w) && v < i64::from(h);
+            inside.then(|| depth.get(u as u32, v as u32).unwrap())
+        };
+        let mut nb = Neighbourhood::default();
+        for v in 0..h as usize {
+            nb.fill(&depth, v, true);
+            for u in 0..w as usize {
+                let window = |r: i64| {
+                    let mut ds = Vec::new();
+                    for dv in -r..=r {
+                        for du in -r..=r {
+                            ds.extend(got(u as i64 + du, v as i64 + dv));
+                        }
+                    }
+                    ds
+                };
+                let ret = |ds: &[f32]| {
+                    ds.iter()
+                        .copied()
+                        .filter(|&d| returned(d))
+                        .collect::<Vec<_>>()
+                };
+                let (w1, w2) = (ret(&window(1)), ret(&window(2)));
+                let min = |ds: &[f32]| ds.iter().copied().fold(f32::INFINITY, f32::min);
+                let max = |ds: &[f32]| ds.iter().copied().fold(0.0, f32::max);
+                let hole = window(2).iter().any(|&d| !returned(d));
+                let span = if w2.is_empty() {
+                    0.0
+                } else {
+                    max(&w2) - min(&w2)
+                };
+                let at = format!("pixel ({u}, {v})");
+                assert_eq!(nb.near1[u], min(&w1), "{at}");
+                assert_eq!(nb.near2[u], min(&w2), "{at}");
+                assert_eq!(nb.far1[u], max(&w1), "{at}");
+                assert_eq!(nb.hole2[u], f32::from(u8::from(hole)), "{at}");
+                assert_eq!(nb.span2[u], span, "{at}");
+            }
+        }
     }
 }
