@@ -129,17 +129,18 @@ impl<'a> SeeThrough<'a> {
         if u < 1 || v < 1 || u >= self.width - 1 || v >= self.height - 1 {
             return false;
         }
-        // `d - 3 sigma_d(d)` grows with d, so the nearest of the nine decides.
-        let nearest = (-1..=1)
-            .filter_map(|dv| {
-                let row = (v + dv) * self.width;
-                self.pixels
-                    .get((row + u - 1) as usize..(row + u + 2) as usize)
-            })
-            .flatten()
-            .fold(f32::INFINITY, |m, &d| {
-                crate::neighbourhood::min_of(m, if d > 0.0 { d } else { 0.0 })
-            });
+        // `d - 3 sigma_d(d)` grows with d, so the nearest of the nine decides (a missing
+        // return counts as 0: never free).
+        let mut nearest = f32::INFINITY;
+        for dv in -1..=1 {
+            let start = ((v + dv) * self.width + u - 1) as usize;
+            let Some(&[a, b, c]) = self.pixels.get(start..start + 3) else {
+                return false;
+            };
+            for d in [a, b, c] {
+                nearest = crate::neighbourhood::min_of(nearest, if d > 0.0 { d } else { 0.0 });
+            }
+        }
         let d = f64::from(nearest);
         d.is_finite() && d > q.z + 3.0 * self.model.model.sigma_d(d) + self.margin_m
     }
