@@ -314,6 +314,10 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 kept.push(u as u32);
             }
         }
+        // The band being filled is moved out of `lists` while consecutive pixels land in
+        // it: pushed to through a local, its length and capacity stay in registers instead
+        // of being reloaded from `lists` at every point.
+        let mut current: (Option<usize>, Vec<CellPoint>) = (None, Vec::new());
         for &u in kept.iter() {
             let u = u as usize;
             let (Some(&band), Some(&cell), Some(&z), Some(&var)) =
@@ -330,16 +334,33 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 (0.0, var)
             };
             let smooth_px = r.flags.get(u).is_some_and(|&f| f & SMOOTH != 0);
-            match lists.get_mut(band as usize) {
-                Some(list) => list.push(CellPoint::new(
-                    cell as u32,
-                    centrality,
-                    smooth_px,
-                    z,
-                    var.clamp(VAR_MIN_M2, VAR_MAX_M2),
-                )),
-                None => rej.outside_window += 1,
+            let band = band as usize;
+            if current.0 != Some(band) {
+                if let Some(list) = current.0.and_then(|b| lists.get_mut(b)) {
+                    std::mem::swap(list, &mut current.1);
+                }
+                current.0 = None;
+                match lists.get_mut(band) {
+                    Some(list) => {
+                        std::mem::swap(list, &mut current.1);
+                        current.0 = Some(band);
+                    }
+                    None => {
+                        rej.outside_window += 1;
+                        continue;
+                    }
+                }
             }
+            current.1.push(CellPoint::new(
+                cell as u32,
+                centrality,
+                smooth_px,
+                z,
+                var.clamp(VAR_MIN_M2, VAR_MAX_M2),
+            ));
+        }
+        if let Some(list) = current.0.and_then(|b| lists.get_mut(b)) {
+            std::mem::swap(list, &mut current.1);
         }
     }
 }
