@@ -129,9 +129,11 @@ pub fn depth_sensor(
     let width = fields.width;
     let n = geom.depth_z.len();
     let h = n / width.max(1);
-    let mut out = vec![0u16; n];
+    // Written in place, so the image's size is its construction's, never a fallback's.
+    let mut out = Image::filled(width as u32, h as u32, 0u16);
     let frame_key = key(&[seed, frame, 0xDE97]);
-    out.par_chunks_mut(width)
+    out.as_mut_slice()
+        .par_chunks_mut(width.max(1))
         .enumerate()
         .for_each(|(row, dst)| {
             for (col, px) in dst.iter_mut().enumerate() {
@@ -224,8 +226,7 @@ pub fn depth_sensor(
                 *px = (zm * depth_scale).round().clamp(0.0, 65535.0) as u16;
             }
         });
-    Image::from_vec(width as u32, h as u32, out)
-        .unwrap_or_else(|_| Image::filled(width as u32, h as u32, 0))
+    out
 }
 
 /// Turns accumulated radiance into an 8-bit image with vignetting (`fields`), shot noise
@@ -239,24 +240,27 @@ pub fn rgb_sensor(
     frame: u64,
 ) -> RgbImage {
     let (w, h) = (camera.width() as usize, camera.height() as usize);
-    let mut out = vec![[0u8; 3]; w * h];
+    // Written in place, so the image's size is its construction's, never a fallback's.
+    let mut out = Image::filled(w as u32, h as u32, [0u8; 3]);
     let frame_key = key(&[seed, frame, 0xC010]);
-    out.par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
-        for (col, px) in dst.iter_mut().enumerate() {
-            let i = row * w + col;
-            let c = color.get(i).copied().unwrap_or([0.0; 3]);
-            let vig = fields.vignette.get(i).copied().unwrap_or(1.0);
-            for (ch, out_ch) in px.iter_mut().enumerate() {
-                let v = f64::from(c[ch]) * vig;
-                let sigma = (read_noise_dn * read_noise_dn + 0.015 * v.max(0.0)).sqrt();
-                let noisy = v + sigma
-                    * hash_normal_fast(
-                        frame_key ^ ((i * 3 + ch) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-                    );
-                *out_ch = noisy.round().clamp(0.0, 255.0) as u8;
+    out.as_mut_slice()
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(row, dst)| {
+            for (col, px) in dst.iter_mut().enumerate() {
+                let i = row * w + col;
+                let c = color.get(i).copied().unwrap_or([0.0; 3]);
+                let vig = fields.vignette.get(i).copied().unwrap_or(1.0);
+                for (ch, out_ch) in px.iter_mut().enumerate() {
+                    let v = f64::from(c[ch]) * vig;
+                    let sigma = (read_noise_dn * read_noise_dn + 0.015 * v.max(0.0)).sqrt();
+                    let noisy = v + sigma
+                        * hash_normal_fast(
+                            frame_key ^ ((i * 3 + ch) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                        );
+                    *out_ch = noisy.round().clamp(0.0, 255.0) as u8;
+                }
             }
-        }
-    });
-    Image::from_vec(w as u32, h as u32, out)
-        .unwrap_or_else(|_| Image::filled(w as u32, h as u32, [0; 3]))
+        });
+    out
 }
