@@ -26,6 +26,7 @@
 pub mod align;
 mod archive;
 mod binned;
+mod cell_point;
 mod checks;
 mod column;
 pub mod denoise;
