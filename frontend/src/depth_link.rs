@@ -97,7 +97,11 @@ impl VisualOdometry {
             .collect();
         // In a chain of weak keyframes (the previous one was linked too), also the
         // nearby keyframes at the short baselines.
-        let chain = (self.recent.nearby.back()).is_some_and(|k| k.id == previous.id && k.linked);
+        let chain = self
+            .recent
+            .nearby
+            .back()
+            .is_some_and(|k| k.id == previous.id && k.linked);
         if short && chain {
             for k in nearest_at_baselines(&self.recent.nearby, &world_from_this, previous.id) {
                 if targets.iter().all(|t| t.0 != k.id) {

@@ -118,7 +118,7 @@ impl Smoother {
         }
         self.tol.clear();
         self.tol.resize(w * h, 0.0);
-        let k = cfg.sigmas as f32;
+        let (k, sigma) = (cfg.sigmas as f32, model.f32_consts());
         // The padding rows are left out by slicing, not by rayon's `skip`, which spawns a
         // task (a heap allocation) for the rows it skips.
         let inner = r * pw..(r + h) * pw;
@@ -135,7 +135,7 @@ impl Smoother {
                     tol,
                     d,
                     k,
-                    sigma: model.f32_consts(),
+                    sigma,
                     model: std::marker::PhantomData::<&M>,
                 });
             });

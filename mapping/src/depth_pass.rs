@@ -336,20 +336,13 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
             let smooth_px = r.flags.get(u).is_some_and(|&f| f & SMOOTH != 0);
             let band = band as usize;
             if current.0 != Some(band) {
-                if let Some(list) = current.0.and_then(|b| lists.get_mut(b)) {
-                    std::mem::swap(list, &mut current.1);
+                swap_band(lists, &mut current);
+                current.0 = Some(band).filter(|&b| b < lists.len());
+                if current.0.is_none() {
+                    rej.outside_window += 1;
+                    continue;
                 }
-                current.0 = None;
-                match lists.get_mut(band) {
-                    Some(list) => {
-                        std::mem::swap(list, &mut current.1);
-                        current.0 = Some(band);
-                    }
-                    None => {
-                        rej.outside_window += 1;
-                        continue;
-                    }
-                }
+                swap_band(lists, &mut current);
             }
             current.1.push(CellPoint::new(
                 cell as u32,
@@ -359,8 +352,15 @@ fn bin_depth_slice_body<M: HeightModel + ?Sized, const CENTRALITY: bool>(
                 var.clamp(VAR_MIN_M2, VAR_MAX_M2),
             ));
         }
-        if let Some(list) = current.0.and_then(|b| lists.get_mut(b)) {
-            std::mem::swap(list, &mut current.1);
-        }
+        swap_band(lists, &mut current);
+    }
+}
+
+/// Swaps the list held in `current` with band `current.0`'s slot in `lists` (nothing when
+/// there is no such band): moves a band's list out to be filled, or back once filled.
+#[inline]
+fn swap_band(lists: &mut [Vec<CellPoint>], current: &mut (Option<usize>, Vec<CellPoint>)) {
+    if let Some(list) = current.0.and_then(|b| lists.get_mut(b)) {
+        std::mem::swap(list, &mut current.1);
     }
 }
