@@ -149,6 +149,11 @@ impl SceneBox {
     }
 }
 
+/// Objects are rendered from this distance (m along the optical axis) on: a tenth of a
+/// millimetre, far below any sensor's minimum range, and far enough from 0 that the
+/// projection of a box's clipped corner stays finite.
+pub const BOX_CLIP_M: f64 = 1e-4;
+
 /// The world the camera sees.
 pub struct Scene {
     /// The terrain.
@@ -252,7 +257,8 @@ impl Scene {
     }
 
     /// The objects whose projection may cover pixels in this frame, with their pixel
-    /// bounding boxes (conservative: a box partly behind the camera covers the whole image).
+    /// bounding boxes: the bounding box of the box's part in front of [`BOX_CLIP_M`],
+    /// projected (a box partly behind the camera covers only the pixels its front part can).
     pub fn screen_boxes(
         &self,
         camera: &PinholeCamera,
@@ -274,32 +280,38 @@ impl Scene {
             .iter()
             .enumerate()
             .filter_map(|(index, b)| {
-                let mut behind = 0;
+                // The box's part in front of the clipping plane is the convex hull of its
+                // corners in front and of the points where its edges cross the plane; its
+                // image is the hull of their projections, so their bounding box is exact.
+                let p_camera = b
+                    .corners()
+                    .map(|c| camera_from_world * Point3::new(c[0], c[1], c[2]));
                 let (mut u0, mut v0, mut u1, mut v1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
-                for c in b.corners() {
-                    let p = camera_from_world * Point3::new(c[0], c[1], c[2]);
-                    if p.z <= 0.05 {
-                        behind += 1;
-                        continue;
-                    }
+                let mut add = |p: Point3<f64>| {
                     let u = camera.fx() * p.x / p.z + camera.cx();
                     let v = camera.fy() * p.y / p.z + camera.cy();
                     u0 = u0.min(u);
                     v0 = v0.min(v);
                     u1 = u1.max(u);
                     v1 = v1.max(v);
+                };
+                for (i, &p) in p_camera.iter().enumerate() {
+                    if p.z >= BOX_CLIP_M {
+                        add(p);
+                    }
+                    // The edges from corner i to the corners that differ in one bit.
+                    for bit in [1, 2, 4] {
+                        let Some(&q) = p_camera.get(i | bit).filter(|_| i & bit == 0) else {
+                            continue;
+                        };
+                        if (p.z >= BOX_CLIP_M) != (q.z >= BOX_CLIP_M) {
+                            let s = (BOX_CLIP_M - p.z) / (q.z - p.z);
+                            add(p + (q - p) * s);
+                        }
+                    }
                 }
-                if behind == 8 {
-                    return None;
-                }
-                if behind > 0 {
-                    return Some(ScreenBox {
-                        index,
-                        u0: -1.0,
-                        v0: -1.0,
-                        u1: w + 1.0,
-                        v1: h + 1.0,
-                    });
+                if u0 > u1 {
+                    return None; // wholly behind the clipping plane
                 }
                 let sb = ScreenBox {
                     index,
@@ -468,6 +480,60 @@ mod tests {
         );
         let (t, _, _) = r.intersect([0.0, 0.0, 0.5], [1.0, 0.0, 0.0], 10.0).unwrap();
         assert!((t - (2.0 - 0.5 * 2f64.sqrt())).abs() < 1e-9);
+    }
+
+    /// Boxes partly behind the camera get a screen box of their front part only, and that
+    /// loses no pixel: a camera 0.3 m from a wall, looking along it and past a box beside
+    /// it, sees the same hit at every pixel whether the screen boxes choose the objects to
+    /// test or every object is tested.
+    #[test]
+    fn screen_boxes_of_boxes_partly_behind_the_camera_lose_no_pixel() {
+        let wall = SceneBox::new(0.0, 1.0, -0.5, 2.2, 4.0, 0.05, 0.0, Material::Wall(0));
+        let side = SceneBox::new(0.2, -0.4, -0.1, 0.6, 0.3, 0.2, 0.4, Material::Object(0));
+        let s = Scene {
+            terrain: flat(),
+            boxes: vec![wall, side],
+            texture_seed: 1,
+        };
+        let camera = PinholeCamera::new(100.0, 100.0, 39.5, 29.5, 80, 60).unwrap();
+        // Optical axis along +x, 0.3 m from the wall (y = 0.95) and inside neither box.
+        let rot = nalgebra::Rotation3::from_basis_unchecked(&[
+            -nalgebra::Vector3::y(),
+            -nalgebra::Vector3::z(),
+            nalgebra::Vector3::x(),
+        ]);
+        let pose = Isometry3::from_parts(
+            nalgebra::Translation3::new(0.0, 0.65, 0.3),
+            nalgebra::UnitQuaternion::from_rotation_matrix(&rot),
+        );
+        let cand = s.screen_boxes(&camera, &pose);
+        let wall_box = cand.iter().find(|b| b.index == 0).unwrap();
+        // The wall is on the image's left: its box ends well inside the image.
+        assert!(
+            wall_box.u1 < 60.0,
+            "the wall's screen box spans {:?}",
+            (wall_box.u0, wall_box.u1)
+        );
+        let o = pose.translation.vector;
+        let (mut on_boxes, mut differ) = (0, 0);
+        for v in 0..60 {
+            for u in 0..80 {
+                let ray = nalgebra::Vector3::new(
+                    (f64::from(u) - 39.5) / 100.0,
+                    (f64::from(v) - 29.5) / 100.0,
+                    1.0,
+                )
+                .normalize();
+                let d = pose.rotation * ray;
+                let (o, d) = ([o.x, o.y, o.z], [d.x, d.y, d.z]);
+                let all = s.trace_ray(o, d, 12.0);
+                let culled = s.trace(o, d, 12.0, &cand, f64::from(u), f64::from(v));
+                on_boxes += usize::from(all.is_some_and(|h| h.material != Material::Ground));
+                differ += usize::from(all != culled);
+            }
+        }
+        assert!(on_boxes > 1000, "only {on_boxes} pixels see a box");
+        assert_eq!(differ, 0);
     }
 
     #[test]
