@@ -15,9 +15,10 @@
 //! * [`robust`]: Huber's kernel (weight and cost) for the estimators.
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
 //! * [`uncertainty`]: per-point 3x3 covariances of RGB-D measurements (PrimeSense model).
+//! * [`simd`]: loops written to vectorise run a copy compiled for AVX2 where the CPU has it.
 //!
-//! This crate holds types and models only (no file I/O) and depends on nalgebra, so that
-//! mapping and evaluation can serve any SLAM.
+//! This crate holds types and models only (no file I/O) and depends on nalgebra (and
+//! `pulp`, for [`simd`]), so that mapping and evaluation can serve any SLAM.
 
 pub mod camera;
 pub mod frame;
@@ -31,6 +32,7 @@ pub mod rng;
 pub mod robust;
 pub mod scan;
 pub mod serde_opt;
+pub mod simd;
 pub mod time;
 pub mod trajectory;
 pub mod uncertainty;

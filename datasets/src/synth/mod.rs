@@ -29,6 +29,7 @@ pub mod sensor;
 pub mod stripe;
 pub mod terrain;
 pub mod texture;
+pub mod texture_batch;
 
 mod config;
 mod output;

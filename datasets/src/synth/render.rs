@@ -5,7 +5,8 @@
 use super::pool::BufferPool;
 use super::raster::{intersect_near_patch, PatchBuffer, TerrainRaster, NO_PATCH};
 use super::scene::Scene;
-use super::texture::albedo;
+use super::texture::{albedo, Material};
+use super::texture_batch::ground_albedo;
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use stride_core::camera::PinholeCamera;
@@ -47,6 +48,82 @@ pub enum Visibility {
 }
 
 const LIGHT: [f64; 3] = [0.3294, 0.2353, 0.9143]; // normalised (0.35, 0.25, 0.97)
+/// The colour (0..255 scale) of a ray that hits nothing.
+const SKY: [f32; 3] = [120.0, 130.0, 140.0];
+
+/// The surface point a pixel's ray hit, for shading.
+#[derive(Debug, Clone, Copy)]
+struct Surface {
+    material: Material,
+    /// Texture coordinates (m; see [`super::scene::Hit::uv`]).
+    uv_m: (f64, f64),
+    /// The pixel's footprint on the surface (m).
+    footprint_m: f64,
+    /// Lambertian shading factor (ambient plus diffuse).
+    light: f64,
+}
+
+/// One task's buffers for shading a row: the row's surfaces, then its ground points
+/// gathered for the batch texture ([`ground_albedo`]).
+#[derive(Default)]
+struct Shading {
+    surfaces: Vec<Option<Surface>>,
+    ground_u: Vec<f64>,
+    ground_v: Vec<f64>,
+    ground_footprint: Vec<f64>,
+    ground_albedo: Vec<[f64; 3]>,
+}
+
+impl Shading {
+    /// Shades [`Self::surfaces`] into `out` (one pixel each) through `put(pixel, rgb)`:
+    /// albedo times light, the sky where nothing was hit. The ground's texture is computed
+    /// for the whole row at once; the same colours as the texture point by point.
+    fn shade(
+        &mut self,
+        seed: u32,
+        out: &mut [[f32; 3]],
+        mut put: impl FnMut(&mut [f32; 3], [f32; 3]),
+    ) {
+        self.ground_u.clear();
+        self.ground_v.clear();
+        self.ground_footprint.clear();
+        for s in self.surfaces.iter().flatten() {
+            if s.material == Material::Ground {
+                self.ground_u.push(s.uv_m.0);
+                self.ground_v.push(s.uv_m.1);
+                self.ground_footprint.push(s.footprint_m);
+            }
+        }
+        self.ground_albedo.clear();
+        self.ground_albedo.resize(self.ground_u.len(), [0.0; 3]);
+        ground_albedo(
+            seed,
+            &self.ground_u,
+            &self.ground_v,
+            &self.ground_footprint,
+            &mut self.ground_albedo,
+        );
+        let mut ground = self.ground_albedo.iter();
+        for (surface, px) in self.surfaces.iter().zip(out.iter_mut()) {
+            let rgb = match surface {
+                None => SKY,
+                Some(s) => {
+                    let a = if s.material == Material::Ground {
+                        ground.next().copied().unwrap_or_default()
+                    } else {
+                        albedo(s.material, s.uv_m.0, s.uv_m.1, s.footprint_m, seed)
+                    };
+                    [
+                        (a[0] * s.light) as f32,
+                        (a[1] * s.light) as f32,
+                        (a[2] * s.light) as f32,
+                    ]
+                }
+            };
+            put(px, rgb);
+        }
+    }
+}
 
 impl<'a> Renderer<'a> {
     /// A renderer for `camera` (distortion ignored: images are rendered undistorted).
@@ -88,10 +165,10 @@ impl<'a> Renderer<'a> {
         want_color: bool,
         patches: Option<&PatchBuffer>,
         marched: &mut usize,
-    ) -> (f32, f32, [f32; 3]) {
+    ) -> (f32, f32, Option<Surface>) {
         let w = self.camera.width() as usize;
         let Some(rc) = self.rays.get(idx) else {
-            return (0.0, 0.0, [0.0; 3]);
+            return (0.0, 0.0, None);
         };
         let dw = pose.rotation * Vector3::new(rc[0], rc[1], rc[2]);
         let d = [dw.x, dw.y, dw.z];
@@ -118,37 +195,22 @@ impl<'a> Renderer<'a> {
                 terrain.intersect(o, d, limit).map(|h| (h.t, None))
             });
         match hit {
-            None => (
-                0.0,
-                0.0,
-                if want_color {
-                    [120.0, 130.0, 140.0]
-                } else {
-                    [0.0; 3]
-                },
-            ),
+            None => (0.0, 0.0, None),
             Some(hit) => {
                 let n = hit.normal;
                 let cos = (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]).abs();
                 let z = (hit.t * rc[2]) as f32;
                 if !want_color {
-                    return (z, cos as f32, [0.0; 3]);
+                    return (z, cos as f32, None);
                 }
-                let footprint = hit.t / self.camera.fx() / cos.max(0.25);
-                let a = albedo(
-                    hit.material,
-                    hit.uv.0,
-                    hit.uv.1,
-                    footprint,
-                    self.scene.texture_seed,
-                );
                 let lambert = (n[0] * LIGHT[0] + n[1] * LIGHT[1] + n[2] * LIGHT[2]).max(0.0);
-                let s = 0.42 + 0.62 * lambert;
-                (
-                    z,
-                    cos as f32,
-                    [(a[0] * s) as f32, (a[1] * s) as f32, (a[2] * s) as f32],
-                )
+                let surface = Surface {
+                    material: hit.material,
+                    uv_m: hit.uv,
+                    footprint_m: hit.t / self.camera.fx() / cos.max(0.25),
+                    light: 0.42 + 0.62 * lambert,
+                };
+                (z, cos as f32, Some(surface))
             }
         }
     }
@@ -180,36 +242,45 @@ impl<'a> Renderer<'a> {
         } else {
             Vec::new()
         };
-        let trace_row =
-            |row: usize, dz: &mut [f32], ci: &mut [f32], mut col: Option<&mut [[f32; 3]]>| {
-                let mut marched = 0usize;
-                for (k, (z_out, c_out)) in dz.iter_mut().zip(ci.iter_mut()).enumerate() {
-                    let (z, c, rgb) = self.trace_pixel(
-                        world_from_camera,
-                        o,
-                        row * w + k,
-                        &cand,
-                        with_color,
-                        patches.as_ref(),
-                        &mut marched,
-                    );
-                    *z_out = z;
-                    *c_out = c;
-                    if let Some(px) = col.as_deref_mut().and_then(|col| col.get_mut(k)) {
-                        *px = rgb;
-                    }
-                }
-                marched
-            };
+        let trace_row = |shade: &mut Shading,
+                         row: usize,
+                         dz: &mut [f32],
+                         ci: &mut [f32],
+                         col: Option<&mut [[f32; 3]]>| {
+            let mut marched = 0usize;
+            shade.surfaces.clear();
+            for (k, (z_out, c_out)) in dz.iter_mut().zip(ci.iter_mut()).enumerate() {
+                let (z, c, surface) = self.trace_pixel(
+                    world_from_camera,
+                    o,
+                    row * w + k,
+                    &cand,
+                    with_color,
+                    patches.as_ref(),
+                    &mut marched,
+                );
+                *z_out = z;
+                *c_out = c;
+                shade.surfaces.push(surface);
+            }
+            if let Some(col) = col {
+                shade.shade(self.scene.texture_seed, col, |px, rgb| *px = rgb);
+            }
+            marched
+        };
         let rows = depth_z.par_chunks_mut(w).zip(cos_inc.par_chunks_mut(w));
         let marched_rays = if with_color {
             rows.zip(color.par_chunks_mut(w))
                 .enumerate()
-                .map(|(row, ((dz, ci), col))| trace_row(row, dz, ci, Some(col)))
+                .map_init(Shading::default, |shade, (row, ((dz, ci), col))| {
+                    trace_row(shade, row, dz, ci, Some(col))
+                })
                 .sum()
         } else {
             rows.enumerate()
-                .map(|(row, (dz, ci))| trace_row(row, dz, ci, None))
+                .map_init(Shading::default, |shade, (row, (dz, ci))| {
+                    trace_row(shade, row, dz, ci, None)
+                })
                 .sum()
         };
         if let Some(p) = patches {
@@ -262,26 +333,32 @@ impl<'a> Renderer<'a> {
         };
         let cand = self.scene.screen_boxes_padded(&self.camera, mid, pad_px);
         let patches = self.patches(row_poses, pad_px, visibility);
-        acc.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
-            let pose = row_poses.get(row).or(row_poses.first()).unwrap_or(mid);
-            let o = pose.translation.vector;
-            let o = [o.x, o.y, o.z];
-            let mut marched = 0usize;
-            for (k, px) in out.iter_mut().enumerate() {
-                let (_, _, rgb) = self.trace_pixel(
-                    pose,
-                    o,
-                    row * w + k,
-                    &cand,
-                    true,
-                    patches.as_ref(),
-                    &mut marched,
-                );
-                px[0] += rgb[0];
-                px[1] += rgb[1];
-                px[2] += rgb[2];
-            }
-        });
+        acc.par_chunks_mut(w)
+            .enumerate()
+            .for_each_init(Shading::default, |shade, (row, out)| {
+                let pose = row_poses.get(row).or(row_poses.first()).unwrap_or(mid);
+                let o = pose.translation.vector;
+                let o = [o.x, o.y, o.z];
+                let mut marched = 0usize;
+                shade.surfaces.clear();
+                for k in 0..out.len() {
+                    let (_, _, surface) = self.trace_pixel(
+                        pose,
+                        o,
+                        row * w + k,
+                        &cand,
+                        true,
+                        patches.as_ref(),
+                        &mut marched,
+                    );
+                    shade.surfaces.push(surface);
+                }
+                shade.shade(self.scene.texture_seed, out, |px, rgb| {
+                    px[0] += rgb[0];
+                    px[1] += rgb[1];
+                    px[2] += rgb[2];
+                });
+            });
         if let Some(p) = patches {
             self.pool.give_patches(p);
         }

@@ -16,8 +16,8 @@ pub enum Material {
     Wall(u32),
 }
 
-#[inline]
-fn hash2(seed: u32, x: i32, y: i32) -> u32 {
+#[inline(always)]
+pub(crate) fn hash2(seed: u32, x: i32, y: i32) -> u32 {
     let mut h = seed ^ (x as u32).wrapping_mul(0x27D4_EB2D) ^ (y as u32).wrapping_mul(0x1656_67B1);
     h ^= h >> 15;
     h = h.wrapping_mul(0x2C1B_3C6D);
@@ -26,13 +26,13 @@ fn hash2(seed: u32, x: i32, y: i32) -> u32 {
     h ^ (h >> 15)
 }
 
-#[inline]
-fn unit(h: u32) -> f64 {
+#[inline(always)]
+pub(crate) fn unit(h: u32) -> f64 {
     f64::from(h) * (1.0 / 4_294_967_296.0)
 }
 
 /// Smooth value noise in `[-1, 1]` on a unit lattice.
-#[inline]
+#[inline(always)]
 pub fn value_noise(seed: u32, x: f64, y: f64) -> f64 {
     let (xf, yf) = (x.floor(), y.floor());
     let (xi, yi) = (xf as i32, yf as i32);
@@ -64,8 +64,7 @@ pub fn fbm(
     let mut norm = 0.0;
     let mut lambda = longest;
     for k in 0..octaves {
-        let ratio = lambda / footprint.max(1e-6);
-        let w = ((ratio - 1.5) / 1.5).clamp(0.0, 1.0);
+        let w = fbm_weight(lambda, footprint);
         if w <= 0.0 {
             break;
         }
@@ -81,9 +80,24 @@ pub fn fbm(
     }
 }
 
+/// The weight in [0, 1] of an octave of wavelength `lambda` (m) under a pixel footprint
+/// `footprint` (m): 1 from three footprints up, 0 at 1.5 and below. It only falls as the
+/// wavelength halves, so once 0 it stays 0.
+#[inline(always)]
+pub(crate) fn fbm_weight(lambda: f64, footprint: f64) -> f64 {
+    let ratio = lambda / footprint.max(1e-6);
+    ((ratio - 1.5) / 1.5).clamp(0.0, 1.0)
+}
+
+/// The soil's albedo (0..255) between pebbles, before its noise.
+pub(crate) const SOIL: [f64; 3] = [128.0, 108.0, 84.0];
+/// The plain concrete's albedo (0..255), before its noise.
+pub(crate) const CONCRETE: [f64; 3] = [152.0, 150.0, 144.0];
+
 /// Pebbles: distance to the nearest jittered cell centre (cell size `cell`, m), as
 /// `(brightness factor, edge darkening)` in `[0.6, 1.4]` and `[0, 1]`.
-fn pebbles(seed: u32, x: f64, y: f64, cell: f64) -> (f64, f64) {
+#[inline(always)]
+pub(crate) fn pebbles(seed: u32, x: f64, y: f64, cell: f64) -> (f64, f64) {
     let (gx, gy) = (x / cell, y / cell);
     let (ix, iy) = (gx.floor() as i32, gy.floor() as i32);
     let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0u32);
@@ -93,13 +107,11 @@ fn pebbles(seed: u32, x: f64, y: f64, cell: f64) -> (f64, f64) {
             let cx = f64::from(ix + dx) + unit(h);
             let cy = f64::from(iy + dy) + unit(h.rotate_left(16));
             let d = (gx - cx).powi(2) + (gy - cy).powi(2);
-            if d < d1 {
-                d2 = d1;
-                d1 = d;
-                best = h;
-            } else if d < d2 {
-                d2 = d;
-            }
+            // Nearest and second nearest.
+            let closer = d < d1;
+            d2 = if closer { d1 } else { d.min(d2) };
+            d1 = if closer { d } else { d1 };
+            best = if closer { h } else { best };
         }
     }
     let edge = 1.0 - ((d2.sqrt() - d1.sqrt()) * 6.0).clamp(0.0, 1.0);
@@ -132,13 +144,12 @@ pub fn albedo(material: Material, u: f64, v: f64, footprint: f64, seed: u32) -> 
             let plain = ((zone - 0.55) / 0.15).clamp(0.0, 1.0);
             if plain >= 1.0 {
                 return scale(
-                    [152.0, 150.0, 144.0],
+                    CONCRETE,
                     1.0 + 0.035 * fbm(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint),
                 );
             }
-            let soil = [128.0, 108.0, 84.0];
             let detail = fbm(seed, u, v, 0.5, 8, 0.62, footprint);
-            let mut c = scale(soil, 1.0 + 0.32 * detail);
+            let mut c = scale(SOIL, 1.0 + 0.32 * detail);
             // Pebbles about 2.5 cm across, fading out when smaller than ~3 pixels.
             let cell = 0.025;
             let pw = ((cell / footprint.max(1e-6) - 2.0) / 2.0).clamp(0.0, 1.0);
@@ -153,7 +164,7 @@ pub fn albedo(material: Material, u: f64, v: f64, footprint: f64, seed: u32) -> 
                 return c;
             }
             let concrete = scale(
-                [152.0, 150.0, 144.0],
+                CONCRETE,
                 1.0 + 0.035 * fbm(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint),
             );
             mix(c, concrete, plain)
