@@ -72,6 +72,8 @@ struct ProjectedBlock {
     cols: usize,
     /// Rows of the image the block may cover (inclusive).
     v_range: (f32, f32),
+    /// The same per patch row of the block.
+    row_v_range: Vec<(f32, f32)>,
     vertices: Vec<Vertex>,
 }
 
@@ -283,12 +285,34 @@ impl TerrainRaster {
                 vertices.push(v);
             }
         }
+        // Each patch row spans its two vertex rows; a clipped vertex may reach any row.
+        let vertex_row_range = |r: usize| {
+            vertices
+                .get(r * (cols + 1)..(r + 1) * (cols + 1))
+                .unwrap_or(&[])
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
+                    if v.p_camera[2] >= NEAR_M as f32 {
+                        (lo.min(v.uvw[1]), hi.max(v.uvw[1]))
+                    } else {
+                        (f32::NEG_INFINITY, f32::INFINITY)
+                    }
+                })
+        };
+        let mut row_v_range = Vec::with_capacity(rows);
+        let mut above = vertex_row_range(0);
+        for i in 0..rows {
+            let below = vertex_row_range(i + 1);
+            row_v_range.push((above.0.min(below.0), above.1.max(below.1)));
+            above = below;
+        }
         Some(ProjectedBlock {
             row0,
             col0,
             rows,
             cols,
             v_range: (vmin, vmax),
+            row_v_range,
             vertices,
         })
     }
@@ -306,7 +330,17 @@ struct Band<'a> {
 impl ProjectedBlock {
     fn rasterize(&self, camera: &PinholeCamera, patch_cols: usize, band: &mut Band<'_>) {
         let stride = self.cols + 1;
+        let (top, bottom) = (band.row0 as f32, band.row1 as f32 - 1.0);
         for i in 0..self.rows {
+            // A patch row wholly above or below the band has no pixel centre in it.
+            let (lo, hi) = self
+                .row_v_range
+                .get(i)
+                .copied()
+                .unwrap_or((f32::NEG_INFINITY, f32::INFINITY));
+            if hi.floor() < top || lo.ceil() > bottom {
+                continue;
+            }
             for j in 0..self.cols {
                 let k = i * stride + j;
                 let (Some(&a), Some(&b), Some(&c), Some(&d)) = (
