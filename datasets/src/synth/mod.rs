@@ -21,6 +21,7 @@
 //! heading. Output is deterministic for a seed, whatever the thread count.
 
 pub mod motion;
+pub mod patch_hit;
 pub mod raster;
 pub mod render;
 pub mod scanner;

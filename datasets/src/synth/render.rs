@@ -2,8 +2,9 @@
 //! Lambertian shading of procedural albedo, averaged over sub-frames spanning the exposure
 //! (physical motion blur). The sensors' noise is applied afterwards ([`super::sensor`]).
 
+use super::patch_hit::{intersect_neighbours, intersect_patches, PatchHit};
 use super::pool::BufferPool;
-use super::raster::{intersect_near_patch, PatchBuffer, TerrainRaster, NO_PATCH};
+use super::raster::{PatchBuffer, TerrainRaster, NO_PATCH};
 use super::scene::Scene;
 use super::texture::{albedo, Material};
 use super::texture_batch::ground_albedo;
@@ -67,6 +68,13 @@ struct Surface {
 /// gathered for the batch texture ([`ground_albedo`]).
 #[derive(Default)]
 struct Shading {
+    /// The row's ray directions (world, unit).
+    dirs: Vec<[f64; 3]>,
+    /// Each ray's hit on its own rasterised patch.
+    own: Vec<Option<PatchHit>>,
+    /// Per pixel: z-depth (m), |cos| of the incidence, the surface to shade.
+    z: Vec<f32>,
+    cos: Vec<f32>,
     surfaces: Vec<Option<Surface>>,
     ground_u: Vec<f64>,
     ground_v: Vec<f64>,
@@ -153,66 +161,92 @@ impl<'a> Renderer<'a> {
         &self.camera
     }
 
-    /// Traces pixel `idx`. `patches` holds the rasterised patch per pixel (or `None` to
-    /// march every ray); `marched` counts the rays marched.
+    /// Traces image row `row` from `pose` (origin `o`) into `scratch`: per pixel the
+    /// z-depth (m, 0 where nothing was hit), |cos| of the incidence and, when `want_color`,
+    /// the surface to shade. `patches` holds the rasterised patch per pixel (or `None` to
+    /// march every ray). Returns the rays marched.
     #[allow(clippy::too_many_arguments)]
-    fn trace_pixel(
+    fn trace_row(
         &self,
         pose: &Isometry3<f64>,
         o: [f64; 3],
-        idx: usize,
+        row: usize,
         cand: &[super::scene::ScreenBox],
         want_color: bool,
         patches: Option<&PatchBuffer>,
-        marched: &mut usize,
-    ) -> (f32, f32, Option<Surface>) {
+        scratch: &mut Shading,
+    ) -> usize {
         let w = self.camera.width() as usize;
-        let Some(rc) = self.rays.get(idx) else {
-            return (0.0, 0.0, None);
-        };
-        let dw = pose.rotation * Vector3::new(rc[0], rc[1], rc[2]);
-        let d = [dw.x, dw.y, dw.z];
-        let (u, v) = ((idx % w) as f64, (idx / w) as f64);
+        let rays = self.rays.get(row * w..(row + 1) * w).unwrap_or(&[]);
+        scratch.dirs.clear();
+        scratch.dirs.extend(rays.iter().map(|rc| {
+            let dw = pose.rotation * Vector3::new(rc[0], rc[1], rc[2]);
+            [dw.x, dw.y, dw.z]
+        }));
         let terrain = &self.scene.terrain;
-        let hint = patches.map(|p| p.patch.get(idx).copied().unwrap_or(NO_PATCH));
-        let hit = self
-            .scene
-            .trace_with(o, d, self.max_t, cand, u, v, |limit| {
-                match hint {
-                    // No triangle of the terrain covers this pixel centre: no terrain here.
-                    Some(NO_PATCH) => return None,
-                    Some(patch) => {
-                        let pc = self.raster.patch_cols();
-                        if let Some((t, n)) =
-                            intersect_near_patch(terrain, pc, patch, o, d, self.max_t)
-                        {
-                            return (t <= limit).then_some((t, Some(n)));
-                        }
-                    }
-                    None => {}
-                }
-                *marched += 1;
-                terrain.intersect(o, d, limit).map(|h| (h.t, None))
-            });
-        match hit {
-            None => (0.0, 0.0, None),
-            Some(hit) => {
-                let n = hit.normal;
-                let cos = (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]).abs();
-                let z = (hit.t * rc[2]) as f32;
-                if !want_color {
-                    return (z, cos as f32, None);
-                }
-                let lambert = (n[0] * LIGHT[0] + n[1] * LIGHT[1] + n[2] * LIGHT[2]).max(0.0);
-                let surface = Surface {
-                    material: hit.material,
-                    uv_m: hit.uv,
-                    footprint_m: hit.t / self.camera.fx() / cos.max(0.25),
-                    light: 0.42 + 0.62 * lambert,
-                };
-                (z, cos as f32, Some(surface))
-            }
+        let pc = self.raster.patch_cols();
+        let hints = patches.and_then(|p| p.patch.get(row * w..(row + 1) * w));
+        // Each ray against its own patch, the whole row at once.
+        scratch.own.clear();
+        scratch.own.resize(rays.len(), None);
+        if let Some(hints) = hints {
+            intersect_patches(
+                terrain,
+                pc,
+                hints,
+                o,
+                &scratch.dirs,
+                self.max_t,
+                &mut scratch.own,
+            );
         }
+        scratch.z.clear();
+        scratch.cos.clear();
+        scratch.surfaces.clear();
+        let mut marched = 0usize;
+        for (k, (rc, &d)) in rays.iter().zip(&scratch.dirs).enumerate() {
+            let hint = hints.map(|h| h.get(k).copied().unwrap_or(NO_PATCH));
+            let own = scratch.own.get(k).copied().flatten();
+            let hit =
+                self.scene
+                    .trace_with(o, d, self.max_t, cand, k as f64, row as f64, |limit| {
+                        match hint {
+                            // No triangle of the terrain covers this pixel centre: no terrain.
+                            Some(NO_PATCH) => return None,
+                            Some(patch) => {
+                                let near = own.or_else(|| {
+                                    intersect_neighbours(terrain, pc, patch, o, d, self.max_t)
+                                });
+                                if let Some((t, n)) = near {
+                                    return (t <= limit).then_some((t, Some(n)));
+                                }
+                            }
+                            None => {}
+                        }
+                        marched += 1;
+                        terrain.intersect(o, d, limit).map(|h| (h.t, None))
+                    });
+            let (z, cos, surface) = match hit {
+                None => (0.0, 0.0, None),
+                Some(hit) => {
+                    let n = hit.normal;
+                    let cos = (n[0] * d[0] + n[1] * d[1] + n[2] * d[2]).abs();
+                    let z = (hit.t * rc[2]) as f32;
+                    let lambert = (n[0] * LIGHT[0] + n[1] * LIGHT[1] + n[2] * LIGHT[2]).max(0.0);
+                    let surface = want_color.then(|| Surface {
+                        material: hit.material,
+                        uv_m: hit.uv,
+                        footprint_m: hit.t / self.camera.fx() / cos.max(0.25),
+                        light: 0.42 + 0.62 * lambert,
+                    });
+                    (z, cos as f32, surface)
+                }
+            };
+            scratch.z.push(z);
+            scratch.cos.push(cos);
+            scratch.surfaces.push(surface);
+        }
+        marched
     }
 
     /// Traces every pixel from `world_from_camera`: depth, incidence and (when `with_color`)
@@ -247,21 +281,20 @@ impl<'a> Renderer<'a> {
                          dz: &mut [f32],
                          ci: &mut [f32],
                          col: Option<&mut [[f32; 3]]>| {
-            let mut marched = 0usize;
-            shade.surfaces.clear();
-            for (k, (z_out, c_out)) in dz.iter_mut().zip(ci.iter_mut()).enumerate() {
-                let (z, c, surface) = self.trace_pixel(
-                    world_from_camera,
-                    o,
-                    row * w + k,
-                    &cand,
-                    with_color,
-                    patches.as_ref(),
-                    &mut marched,
-                );
-                *z_out = z;
-                *c_out = c;
-                shade.surfaces.push(surface);
+            let marched = self.trace_row(
+                world_from_camera,
+                o,
+                row,
+                &cand,
+                with_color,
+                patches.as_ref(),
+                shade,
+            );
+            for (out, &z) in dz.iter_mut().zip(&shade.z) {
+                *out = z;
+            }
+            for (out, &c) in ci.iter_mut().zip(&shade.cos) {
+                *out = c;
             }
             if let Some(col) = col {
                 shade.shade(self.scene.texture_seed, col, |px, rgb| *px = rgb);
@@ -339,20 +372,7 @@ impl<'a> Renderer<'a> {
                 let pose = row_poses.get(row).or(row_poses.first()).unwrap_or(mid);
                 let o = pose.translation.vector;
                 let o = [o.x, o.y, o.z];
-                let mut marched = 0usize;
-                shade.surfaces.clear();
-                for k in 0..out.len() {
-                    let (_, _, surface) = self.trace_pixel(
-                        pose,
-                        o,
-                        row * w + k,
-                        &cand,
-                        true,
-                        patches.as_ref(),
-                        &mut marched,
-                    );
-                    shade.surfaces.push(surface);
-                }
+                self.trace_row(pose, o, row, &cand, true, patches.as_ref(), shade);
                 shade.shade(self.scene.texture_seed, out, |px, rgb| {
                     px[0] += rgb[0];
                     px[1] += rgb[1];
