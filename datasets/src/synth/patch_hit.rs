@@ -77,8 +77,15 @@ pub fn intersect_patch(
     d: [f64; 3],
     t_max: f64,
 ) -> Option<PatchHit> {
-    let (corners, i, j) = corners(terrain, patch_cols, patch)?;
-    hit(&terrain.grid().geometry, corners, i, j, o, d, t_max)
+    let (v, i, j) = corners(terrain, patch_cols, patch)?;
+    let rays = Rays::<1> {
+        v: v.map(|v| [v]),
+        i: [i],
+        j: [j],
+        d: d.map(|d| [d]),
+    };
+    let hits = hit(&terrain.grid().geometry, &rays, o, t_max);
+    hits.ok[0].then_some((hits.t[0], [hits.n[0][0], hits.n[1][0], hits.n[2][0]]))
 }
 
 /// `hits[k] = intersect_patch(terrain, patch_cols, patches[k], o, dirs[k], t_max)` for
@@ -129,24 +136,67 @@ impl pulp::WithSimd for Row<'_> {
         for ((patches, dirs), hits) in chunks {
             // Gather each lane's corners; a lane without a patch computes on zeros and is
             // dropped below.
-            let mut lanes = [([0.0; 4], 0.0, 0.0, [0.0; 3], false); LANES];
-            for ((lane, &patch), &d) in lanes.iter_mut().zip(patches).zip(dirs) {
-                if patch == NO_PATCH {
+            let mut rays = Rays::<LANES> {
+                v: [[0.0; LANES]; 4],
+                i: [0.0; LANES],
+                j: [0.0; LANES],
+                d: [[0.0; LANES]; 3],
+            };
+            let mut used = [false; LANES];
+            for (l, (&patch, &d)) in patches.iter().zip(dirs).enumerate() {
+                let Some((v, i, j)) = (patch != NO_PATCH)
+                    .then(|| corners(self.terrain, self.patch_cols, patch))
+                    .flatten()
+                else {
                     continue;
+                };
+                if let Some(u) = used.get_mut(l) {
+                    *u = true;
                 }
-                if let Some((c, i, j)) = corners(self.terrain, self.patch_cols, patch) {
-                    *lane = (c, i, j, d, true);
+                for (lane, value) in rays.v.iter_mut().zip(v) {
+                    if let Some(x) = lane.get_mut(l) {
+                        *x = value;
+                    }
+                }
+                for (lane, value) in rays.d.iter_mut().zip(d) {
+                    if let Some(x) = lane.get_mut(l) {
+                        *x = value;
+                    }
+                }
+                if let (Some(ri), Some(rj)) = (rays.i.get_mut(l), rays.j.get_mut(l)) {
+                    (*ri, *rj) = (i, j);
                 }
             }
-            let mut out = [None; LANES];
-            for (out, &(c, i, j, d, _)) in out.iter_mut().zip(&lanes) {
-                *out = hit(&g, c, i, j, self.o, d, self.t_max);
-            }
-            for ((h, out), lane) in hits.iter_mut().zip(out).zip(&lanes) {
-                *h = out.filter(|_| lane.4);
+            let out = hit(&g, &rays, self.o, self.t_max);
+            for (l, h) in hits.iter_mut().enumerate() {
+                *h = match (used.get(l), out.ok.get(l), out.t.get(l)) {
+                    (Some(true), Some(true), Some(&t)) => {
+                        let n = out.n.map(|n| n.get(l).copied().unwrap_or(0.0));
+                        Some((t, n))
+                    }
+                    _ => None,
+                };
             }
         }
     }
+}
+
+/// Rays against patches, one per lane: the patch's corner heights `v[c][lane]` (m, in
+/// the order of [`corners`]), its row and column, and the unit ray direction `d[axis][lane]`
+/// (world).
+struct Rays<const N: usize> {
+    v: [[f64; N]; 4],
+    i: [f64; N],
+    j: [f64; N],
+    d: [[f64; N]; 3],
+}
+
+/// Per lane: whether the ray hits its patch, the distance (m) and the unit normal
+/// `n[axis][lane]` (world).
+struct Hits<const N: usize> {
+    ok: [bool; N],
+    t: [f64; N],
+    n: [[f64; N]; 3],
 }
 
 /// Patch `patch`'s corner heights `[v00, v01, v10, v11]` (m; `v01` is one column on) and
@@ -169,80 +219,81 @@ fn corners(terrain: &HeightField, patch_cols: usize, patch: u32) -> Option<([f64
     Some((corners, i as f64, j as f64))
 }
 
-/// [`intersect_patch`] on the patch at row `i`, column `j` with corner heights `v`.
+/// [`intersect_patch`] for each lane, from rays that start at `o` (world, m). The steps
+/// run lane by lane in stages so that they vectorise; a lane that the single-ray code
+/// would have left early carries on with values it then drops (`ok` false).
 #[inline(always)]
-fn hit(
-    g: &GridGeometry,
-    v: [f64; 4],
-    i: f64,
-    j: f64,
-    o: [f64; 3],
-    d: [f64; 3],
-    t_max: f64,
-) -> Option<PatchHit> {
-    let [v00, v01, v10, v11] = v;
+// Lanes of fixed-size arrays, all indexed below N.
+#[allow(clippy::needless_range_loop)]
+fn hit<const N: usize>(g: &GridGeometry, r: &Rays<N>, o: [f64; 3], t_max: f64) -> Hits<N> {
     let inv_res = 1.0 / g.resolution;
+    let [v00, v01, v10, v11] = &r.v;
+    let mut ok = [true; N];
     // Patch-local coordinates: X along columns, Y along rows, both in [0, 1] on the patch.
-    let (ox, oy) = (
-        (o[0] - g.origin_x) * inv_res - j,
-        (o[1] - g.origin_y) * inv_res - i,
-    );
-    let (dx, dy) = (d[0] * inv_res, d[1] * inv_res);
-    let (mut t_in, mut t_out) = (0.0f64, t_max);
-    for (oc, dc) in [(ox, dx), (oy, dy)] {
-        if dc.abs() < 1e-15 {
-            if !(0.0..=1.0).contains(&oc) {
-                return None;
-            }
-        } else {
-            let (ta, tb) = (-oc / dc, (1.0 - oc) / dc);
-            t_in = t_in.max(ta.min(tb));
-            t_out = t_out.min(ta.max(tb));
-        }
+    let (mut ox, mut oy, mut dx, mut dy) = ([0.0; N], [0.0; N], [0.0; N], [0.0; N]);
+    for l in 0..N {
+        ox[l] = (o[0] - g.origin_x) * inv_res - r.j[l];
+        oy[l] = (o[1] - g.origin_y) * inv_res - r.i[l];
+        dx[l] = r.d[0][l] * inv_res;
+        dy[l] = r.d[1][l] * inv_res;
     }
-    if t_in > t_out {
-        return None;
+    // The span of t over which the ray is above the patch's square.
+    let (mut t_in, mut t_out) = ([0.0f64; N], [t_max; N]);
+    for (oc, dc) in [(&ox, &dx), (&oy, &dy)] {
+        for l in 0..N {
+            let parallel = dc[l].abs() < 1e-15;
+            let (ta, tb) = (-oc[l] / dc[l], (1.0 - oc[l]) / dc[l]);
+            let (ti, to) = (t_in[l].max(ta.min(tb)), t_out[l].min(ta.max(tb)));
+            ok[l] &= !parallel || (0.0..=1.0).contains(&oc[l]);
+            t_in[l] = if parallel { t_in[l] } else { ti };
+            t_out[l] = if parallel { t_out[l] } else { to };
+        }
     }
     // f(t) = ray height - surface height = c0 + c1 t + c2 t^2.
-    let (ex, ey, kk) = (v01 - v00, v10 - v00, v00 - v01 - v10 + v11);
-    let c0 = o[2] - v00 - ex * ox - ey * oy - kk * ox * oy;
-    let c1 = d[2] - ex * dx - ey * dy - kk * (ox * dy + dx * oy);
-    let c2 = -kk * dx * dy;
-    let f = |t: f64| c0 + t * (c1 + t * c2);
-    if f(t_in) <= 0.0 {
-        return None;
+    let (mut ex, mut ey, mut kk) = ([0.0; N], [0.0; N], [0.0; N]);
+    let (mut c0, mut c1, mut c2) = ([0.0; N], [0.0; N], [0.0; N]);
+    for l in 0..N {
+        ex[l] = v01[l] - v00[l];
+        ey[l] = v10[l] - v00[l];
+        kk[l] = v00[l] - v01[l] - v10[l] + v11[l];
+        c0[l] = o[2] - v00[l] - ex[l] * ox[l] - ey[l] * oy[l] - kk[l] * ox[l] * oy[l];
+        c1[l] = r.d[2][l] - ex[l] * dx[l] - ey[l] * dy[l] - kk[l] * (ox[l] * dy[l] + dx[l] * oy[l]);
+        c2[l] = -kk[l] * dx[l] * dy[l];
+        let f_in = c0[l] + t_in[l] * (c1[l] + t_in[l] * c2[l]);
+        ok[l] &= !(t_in[l] > t_out[l]) && !(f_in <= 0.0);
     }
-    let slack = 1e-9 * (1.0 + t_out);
-    let in_range = |t: f64| t >= t_in && t <= t_out + slack;
-    let t = if c2.abs() <= 1e-12 * (c1.abs() + c0.abs()) {
-        let t = -c0 / c1;
-        if c1 == 0.0 || !in_range(t) {
-            return None;
-        }
-        t.min(t_out)
-    } else {
-        let disc = c1 * c1 - 4.0 * c2 * c0;
-        if disc < 0.0 {
-            return None;
-        }
-        let q = -0.5 * (c1 + c1.signum() * disc.sqrt());
-        let (r1, r2) = (q / c2, if q != 0.0 { c0 / q } else { f64::INFINITY });
+    // The first root in the span (the linear case when the quadratic term vanishes).
+    let mut t = [0.0; N];
+    for l in 0..N {
+        let slack = 1e-9 * (1.0 + t_out[l]);
+        let in_range = |t: f64| t >= t_in[l] && t <= t_out[l] + slack;
+        let linear = c2[l].abs() <= 1e-12 * (c1[l].abs() + c0[l].abs());
+        let t_lin = -c0[l] / c1[l];
+        let ok_lin = c1[l] != 0.0 && in_range(t_lin);
+        let disc = c1[l] * c1[l] - 4.0 * c2[l] * c0[l];
+        let q = -0.5 * (c1[l] + c1[l].signum() * disc.sqrt());
+        let (r1, r2) = (q / c2[l], if q != 0.0 { c0[l] / q } else { f64::INFINITY });
         let (lo, hi) = (r1.min(r2), r1.max(r2));
-        let t = if in_range(lo) {
-            lo
-        } else if in_range(hi) {
-            hi
-        } else {
-            return None;
-        };
-        t.min(t_out)
-    };
-    // Slopes (m/m) of the bilinear patch at the hit, clamped to the patch.
-    let (fx, fy) = ((ox + t * dx).clamp(0.0, 1.0), (oy + t * dy).clamp(0.0, 1.0));
-    let sx = (ex + kk * fy) * inv_res;
-    let sy = (ey + kk * fx) * inv_res;
-    let n = (sx * sx + sy * sy + 1.0).sqrt();
-    Some((t, [-sx / n, -sy / n, 1.0 / n]))
+        let t_quad = if in_range(lo) { lo } else { hi };
+        let ok_quad = !(disc < 0.0) && (in_range(lo) || in_range(hi));
+        ok[l] &= if linear { ok_lin } else { ok_quad };
+        t[l] = if linear { t_lin } else { t_quad }.min(t_out[l]);
+    }
+    // Slopes (m/m) of the bilinear patch at the hit, clamped to the patch, and the normal.
+    let mut n = [[0.0; N]; 3];
+    for l in 0..N {
+        let (fx, fy) = (
+            (ox[l] + t[l] * dx[l]).clamp(0.0, 1.0),
+            (oy[l] + t[l] * dy[l]).clamp(0.0, 1.0),
+        );
+        let sx = (ex[l] + kk[l] * fy) * inv_res;
+        let sy = (ey[l] + kk[l] * fx) * inv_res;
+        let norm = (sx * sx + sy * sy + 1.0).sqrt();
+        n[0][l] = -sx / norm;
+        n[1][l] = -sy / norm;
+        n[2][l] = 1.0 / norm;
+    }
+    Hits { ok, t, n }
 }
 
 #[cfg(test)]
