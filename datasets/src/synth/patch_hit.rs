@@ -223,8 +223,9 @@ fn corners(terrain: &HeightField, patch_cols: usize, patch: u32) -> Option<([f64
 /// run lane by lane in stages so that they vectorise; a lane that the single-ray code
 /// would have left early carries on with values it then drops (`ok` false).
 #[inline(always)]
-// Lanes of fixed-size arrays, all indexed below N.
-#[allow(clippy::needless_range_loop)]
+// Lanes of fixed-size arrays, all indexed below N; `!(a > b)` keeps a lane going on NaN,
+// as the tests it stands for did (`if a > b { return None }`).
+#[allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
 fn hit<const N: usize>(g: &GridGeometry, r: &Rays<N>, o: [f64; 3], t_max: f64) -> Hits<N> {
     let inv_res = 1.0 / g.resolution;
     let [v00, v01, v10, v11] = &r.v;
