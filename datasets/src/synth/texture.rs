@@ -98,24 +98,53 @@ pub(crate) const CONCRETE: [f64; 3] = [152.0, 150.0, 144.0];
 /// `(brightness factor, edge darkening)` in `[0.6, 1.4]` and `[0, 1]`.
 #[inline(always)]
 pub(crate) fn pebbles(seed: u32, x: f64, y: f64, cell: f64) -> (f64, f64) {
-    let (gx, gy) = (x / cell, y / cell);
-    let (ix, iy) = (gx.floor() as i32, gy.floor() as i32);
-    let (mut d1, mut d2, mut best) = (f64::MAX, f64::MAX, 0u32);
+    let [p] = pebbles_lanes(seed, &[x], &[y], cell);
+    p
+}
+
+/// [`pebbles`] of `N` points `(x[l], y[l])` (m), written lane by lane in stages so that a
+/// batch of points vectorises (`texture_batch`); one lane is [`pebbles`].
+#[inline(always)]
+// Lanes of fixed-size arrays, all indexed below N.
+#[allow(clippy::needless_range_loop)]
+pub(crate) fn pebbles_lanes<const N: usize>(
+    seed: u32,
+    x: &[f64; N],
+    y: &[f64; N],
+    cell: f64,
+) -> [(f64, f64); N] {
+    let (mut gx, mut gy, mut ix, mut iy) = ([0.0; N], [0.0; N], [0i32; N], [0i32; N]);
+    for l in 0..N {
+        (gx[l], gy[l]) = (x[l] / cell, y[l] / cell);
+        (ix[l], iy[l]) = (gx[l].floor() as i32, gy[l].floor() as i32);
+    }
+    let (mut d1, mut d2, mut best) = ([f64::MAX; N], [f64::MAX; N], [0u32; N]);
     for dy in -1..=1 {
         for dx in -1..=1 {
-            let h = hash2(seed, ix + dx, iy + dy);
-            let cx = f64::from(ix + dx) + unit(h);
-            let cy = f64::from(iy + dy) + unit(h.rotate_left(16));
-            let d = (gx - cx).powi(2) + (gy - cy).powi(2);
-            // Nearest and second nearest.
-            let closer = d < d1;
-            d2 = if closer { d1 } else { d.min(d2) };
-            d1 = if closer { d } else { d1 };
-            best = if closer { h } else { best };
+            let mut h = [0u32; N];
+            let (mut cx, mut cy) = ([0.0; N], [0.0; N]);
+            for l in 0..N {
+                let (cx_i, cy_i) = (ix[l] + dx, iy[l] + dy);
+                h[l] = hash2(seed, cx_i, cy_i);
+                cx[l] = f64::from(cx_i) + unit(h[l]);
+                cy[l] = f64::from(cy_i) + unit(h[l].rotate_left(16));
+            }
+            for l in 0..N {
+                let d = (gx[l] - cx[l]).powi(2) + (gy[l] - cy[l]).powi(2);
+                // Nearest and second nearest.
+                let closer = d < d1[l];
+                d2[l] = if closer { d1[l] } else { d.min(d2[l]) };
+                d1[l] = if closer { d } else { d1[l] };
+                best[l] = if closer { h[l] } else { best[l] };
+            }
         }
     }
-    let edge = 1.0 - ((d2.sqrt() - d1.sqrt()) * 6.0).clamp(0.0, 1.0);
-    (0.6 + 0.8 * unit(best.rotate_left(7)), edge)
+    let mut out = [(0.0, 0.0); N];
+    for l in 0..N {
+        let edge = 1.0 - ((d2[l].sqrt() - d1[l].sqrt()) * 6.0).clamp(0.0, 1.0);
+        out[l] = (0.6 + 0.8 * unit(best[l].rotate_left(7)), edge);
+    }
+    out
 }
 
 fn mix(a: [f64; 3], b: [f64; 3], t: f64) -> [f64; 3] {

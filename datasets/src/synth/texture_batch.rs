@@ -9,7 +9,7 @@
 //! through `stride_core::simd::dispatch`, which compiles them once more for AVX2 (4 f64
 //! lanes) on CPUs that have it.
 
-use super::texture::{fbm_weight, pebbles, value_noise, CONCRETE, SOIL};
+use super::texture::{fbm_weight, pebbles_lanes, value_noise, CONCRETE, SOIL};
 
 /// Points per batch: two AVX2 registers of f64.
 pub const LANES: usize = 8;
@@ -110,7 +110,7 @@ fn ground_lanes(seed: u32, u: &L, v: &L, footprint: &L) -> [[f64; 3]; LANES] {
         *w = ((cell / f.max(1e-6) - 2.0) / 2.0).clamp(0.0, 1.0);
     }
     let pebble = if pw.iter().any(|&w| w > 0.0) {
-        pebble_lanes(seed ^ 0x51, u, v, cell)
+        pebbles_lanes(seed ^ 0x51, u, v, cell)
     } else {
         [(0.0, 0.0); LANES]
     };
@@ -181,16 +181,6 @@ fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, foo
     let mut out = [0.0; LANES];
     for (o, (&s, &n)) in out.iter_mut().zip(sum.iter().zip(&norm)) {
         *o = if n > 0.0 { s / n * 1.6 } else { 0.0 };
-    }
-    out
-}
-
-/// [`super::texture::pebbles`] of [`LANES`] points.
-#[inline(always)]
-fn pebble_lanes(seed: u32, x: &L, y: &L, cell: f64) -> [(f64, f64); LANES] {
-    let mut out = [(0.0, 0.0); LANES];
-    for (o, (&x, &y)) in out.iter_mut().zip(x.iter().zip(y)) {
-        *o = pebbles(seed, x, y, cell);
     }
     out
 }
