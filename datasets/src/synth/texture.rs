@@ -34,17 +34,40 @@ pub(crate) fn unit(h: u32) -> f64 {
 /// Smooth value noise in `[-1, 1]` on a unit lattice.
 #[inline(always)]
 pub fn value_noise(seed: u32, x: f64, y: f64) -> f64 {
-    let (xf, yf) = (x.floor(), y.floor());
-    let (xi, yi) = (xf as i32, yf as i32);
-    let (fx, fy) = (x - xf, y - yf);
-    let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
-    let v00 = unit(hash2(seed, xi, yi));
-    let v10 = unit(hash2(seed, xi + 1, yi));
-    let v01 = unit(hash2(seed, xi, yi + 1));
-    let v11 = unit(hash2(seed, xi + 1, yi + 1));
-    let a = v00 + (v10 - v00) * sx;
-    let b = v01 + (v11 - v01) * sx;
-    (a + (b - a) * sy) * 2.0 - 1.0
+    let [v] = value_noise_lanes(seed, &[x], &[y]);
+    v
+}
+
+/// [`value_noise`] at `N` points `(x[l], y[l])`, written lane by lane in stages (lattice
+/// cells, the corners' hashes, the blend) so that a batch vectorises (`texture_batch`);
+/// one lane is [`value_noise`].
+#[inline(always)]
+// Lanes of fixed-size arrays, all indexed below N.
+#[allow(clippy::needless_range_loop)]
+pub(crate) fn value_noise_lanes<const N: usize>(seed: u32, x: &[f64; N], y: &[f64; N]) -> [f64; N] {
+    let (mut xi, mut yi, mut sx, mut sy) = ([0i32; N], [0i32; N], [0.0; N], [0.0; N]);
+    for l in 0..N {
+        let (xf, yf) = (x[l].floor(), y[l].floor());
+        (xi[l], yi[l]) = (xf as i32, yf as i32);
+        let (fx, fy) = (x[l] - xf, y[l] - yf);
+        (sx[l], sy[l]) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
+    }
+    let mut corner = [[0u32; N]; 4];
+    for l in 0..N {
+        corner[0][l] = hash2(seed, xi[l], yi[l]);
+        corner[1][l] = hash2(seed, xi[l] + 1, yi[l]);
+        corner[2][l] = hash2(seed, xi[l], yi[l] + 1);
+        corner[3][l] = hash2(seed, xi[l] + 1, yi[l] + 1);
+    }
+    let mut out = [0.0; N];
+    for l in 0..N {
+        let (v00, v10) = (unit(corner[0][l]), unit(corner[1][l]));
+        let (v01, v11) = (unit(corner[2][l]), unit(corner[3][l]));
+        let a = v00 + (v10 - v00) * sx[l];
+        let b = v01 + (v11 - v01) * sx[l];
+        out[l] = (a + (b - a) * sy[l]) * 2.0 - 1.0;
+    }
+    out
 }
 
 /// Fractal sum of value noise from wavelength `longest` (m) down by factors of two while the

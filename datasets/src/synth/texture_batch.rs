@@ -9,7 +9,7 @@
 //! through `stride_core::simd::dispatch`, which compiles them once more for AVX2 (4 f64
 //! lanes) on CPUs that have it.
 
-use super::texture::{fbm_weight, pebbles_lanes, value_noise, CONCRETE, SOIL};
+use super::texture::{fbm_weight, pebbles_lanes, value_noise_lanes, CONCRETE, SOIL};
 
 /// Points per batch: two AVX2 registers of f64.
 pub const LANES: usize = 8;
@@ -73,12 +73,12 @@ fn copy_into(dst: &mut L, src: &[f64]) {
     }
 }
 
-/// `f(x[i], y[i])` for each lane.
+/// `f(x[i])` for each lane.
 #[inline(always)]
-fn map2(x: &L, y: &L, f: impl Fn(f64, f64) -> f64) -> L {
+fn map(x: &L, f: impl Fn(f64) -> f64) -> L {
     let mut out = [0.0; LANES];
-    for (o, (&x, &y)) in out.iter_mut().zip(x.iter().zip(y)) {
-        *o = f(x, y);
+    for (o, &x) in out.iter_mut().zip(x) {
+        *o = f(x);
     }
     out
 }
@@ -86,7 +86,7 @@ fn map2(x: &L, y: &L, f: impl Fn(f64, f64) -> f64) -> L {
 /// The ground's albedo of [`LANES`] points (see [`super::texture::albedo`]).
 #[inline(always)]
 fn ground_lanes(seed: u32, u: &L, v: &L, footprint: &L) -> [[f64; 3]; LANES] {
-    let noise = map2(u, v, |u, v| value_noise(seed ^ 0xA5, u / 2.2, v / 2.2));
+    let noise = value_noise_lanes(seed ^ 0xA5, &map(u, |u| u / 2.2), &map(v, |v| v / 2.2));
     let mut plain = [0.0; LANES];
     for (p, ((&n, &u), &v)) in plain.iter_mut().zip(noise.iter().zip(u).zip(v)) {
         let zone = n - 0.6 * (-(u * u + v * v) / 2.0).exp();
@@ -159,6 +159,10 @@ fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, foo
     let (mut sum, mut norm) = ([0.0; LANES], [0.0; LANES]);
     let mut amp = 1.0;
     let mut lambda = longest;
+    // x / lambda as (x / longest) * 2^k: the same bits (scaling by a power of two commutes
+    // with rounding), one division per point instead of one per octave.
+    let (x, y) = (map(x, |x| x / longest), map(y, |y| y / longest));
+    let mut scale = 1.0;
     for k in 0..octaves {
         let mut w = [0.0; LANES];
         for (w, &f) in w.iter_mut().zip(footprint) {
@@ -168,7 +172,7 @@ fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, foo
             break;
         }
         let s = seed.wrapping_add(k * 7919);
-        let n = map2(x, y, |x, y| value_noise(s, x / lambda, y / lambda));
+        let n = value_noise_lanes(s, &map(&x, |x| x * scale), &map(&y, |y| y * scale));
         for (((sum, norm), &w), &n) in sum.iter_mut().zip(&mut norm).zip(&w).zip(&n) {
             *sum += w * amp * n;
             if w > 0.0 {
@@ -177,6 +181,7 @@ fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, foo
         }
         amp *= gain;
         lambda *= 0.5;
+        scale *= 2.0;
     }
     let mut out = [0.0; LANES];
     for (o, (&s, &n)) in out.iter_mut().zip(sum.iter().zip(&norm)) {
@@ -188,7 +193,7 @@ fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, foo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synth::texture::{albedo, Material};
+    use crate::synth::texture::{albedo, value_noise, Material};
 
     /// Every point of a walk over gravel, pebbles and plain concrete, near and far (the
     /// octaves and pebbles fade with the footprint), gets the scalar texture's colour bit
