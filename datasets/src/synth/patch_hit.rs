@@ -88,10 +88,35 @@ pub fn intersect_patch(
     hits.ok[0].then_some((hits.t[0], [hits.n[0][0], hits.n[1][0], hits.n[2][0]]))
 }
 
-/// `hits[k] = intersect_patch(terrain, patch_cols, patches[k], o, dirs[k], t_max)` for
-/// each ray `k` of a row, and `None` where `patches[k]` is [`NO_PATCH`]; bit for bit the
-/// same. Rays go through the arithmetic [`LANES`] at a time, compiled for AVX2 where the
-/// CPU has it (`stride_core::simd`). Uses the shortest of the three slices' lengths.
+/// One row's hits on their patches, one entry per ray, in separate arrays (the renderer
+/// reads them ray by ray; an array of `Option<PatchHit>` cost it a stall per ray copying
+/// the option through memory).
+#[derive(Debug, Default, Clone)]
+pub struct RowHits {
+    /// Whether the ray hits its patch.
+    pub hit: Vec<bool>,
+    /// Distance along the ray (m), where it hits.
+    pub t_m: Vec<f64>,
+    /// Unit surface normal (world), where it hits.
+    pub normal: Vec<[f64; 3]>,
+}
+
+impl RowHits {
+    /// Ray `k`'s hit, if any.
+    #[inline]
+    pub fn get(&self, k: usize) -> Option<PatchHit> {
+        match (self.hit.get(k), self.t_m.get(k), self.normal.get(k)) {
+            (Some(true), Some(&t), Some(&n)) => Some((t, n)),
+            _ => None,
+        }
+    }
+}
+
+/// Fills `hits` with, for each ray `k` of a row, `intersect_patch(terrain, patch_cols,
+/// patches[k], o, dirs[k], t_max)`, and no hit where `patches[k]` is [`NO_PATCH`]; bit for
+/// bit the same. Rays go through the arithmetic [`LANES`] at a time, compiled for AVX2
+/// where the CPU has it (`stride_core::simd`). One entry per ray of the shorter of
+/// `patches` and `dirs`.
 pub fn intersect_patches(
     terrain: &HeightField,
     patch_cols: usize,
@@ -99,8 +124,15 @@ pub fn intersect_patches(
     o: [f64; 3],
     dirs: &[[f64; 3]],
     t_max: f64,
-    hits: &mut [Option<PatchHit>],
+    hits: &mut RowHits,
 ) {
+    let n = patches.len().min(dirs.len());
+    hits.hit.clear();
+    hits.hit.resize(n, false);
+    hits.t_m.clear();
+    hits.t_m.resize(n, 0.0);
+    hits.normal.clear();
+    hits.normal.resize(n, [0.0; 3]);
     stride_core::simd::dispatch(Row {
         terrain,
         patch_cols,
@@ -119,7 +151,7 @@ struct Row<'a> {
     o: [f64; 3],
     dirs: &'a [[f64; 3]],
     t_max: f64,
-    hits: &'a mut [Option<PatchHit>],
+    hits: &'a mut RowHits,
 }
 
 impl pulp::WithSimd for Row<'_> {
@@ -132,8 +164,10 @@ impl pulp::WithSimd for Row<'_> {
             .patches
             .chunks(LANES)
             .zip(self.dirs.chunks(LANES))
-            .zip(self.hits.chunks_mut(LANES));
-        for ((patches, dirs), hits) in chunks {
+            .zip(self.hits.hit.chunks_mut(LANES))
+            .zip(self.hits.t_m.chunks_mut(LANES))
+            .zip(self.hits.normal.chunks_mut(LANES));
+        for ((((patches, dirs), hit_out), t_m), normal) in chunks {
             // Gather each lane's corners; a lane without a patch computes on zeros and is
             // dropped below.
             let mut rays = Rays::<LANES> {
@@ -168,14 +202,14 @@ impl pulp::WithSimd for Row<'_> {
                 }
             }
             let out = hit(&g, &rays, self.o, self.t_max);
-            for (l, h) in hits.iter_mut().enumerate() {
-                *h = match (used.get(l), out.ok.get(l), out.t.get(l)) {
-                    (Some(true), Some(true), Some(&t)) => {
-                        let n = out.n.map(|n| n.get(l).copied().unwrap_or(0.0));
-                        Some((t, n))
-                    }
-                    _ => None,
-                };
+            for (l, ((h, t), n)) in hit_out.iter_mut().zip(t_m).zip(normal).enumerate() {
+                if let (Some(true), Some(true), Some(&t_l)) =
+                    (used.get(l), out.ok.get(l), out.t.get(l))
+                {
+                    *h = true;
+                    *t = t_l;
+                    *n = out.n.map(|n| n.get(l).copied().unwrap_or(0.0));
+                }
             }
         }
     }
@@ -337,25 +371,26 @@ mod tests {
             patches.push(patch);
             dirs.push(d);
         }
-        let mut hits = vec![None; patches.len()];
+        let mut hits = RowHits::default();
         for portable in [true, false] {
             stride_core::simd::force_portable(portable);
             intersect_patches(&terrain, pc, &patches, o, &dirs, 12.0, &mut hits);
             stride_core::simd::force_portable(false);
             let (mut found, mut differ) = (0, 0);
-            for ((&p, &d), h) in patches.iter().zip(&dirs).zip(&hits) {
+            assert_eq!(hits.hit.len(), patches.len());
+            for (k, (&p, &d)) in patches.iter().zip(&dirs).enumerate() {
                 let want = (p != NO_PATCH)
                     .then(|| intersect_patch(&terrain, pc, p, o, d, 12.0))
                     .flatten();
                 let bits = |h: Option<PatchHit>| h.map(|(t, n)| (t.to_bits(), n.map(f64::to_bits)));
-                differ += usize::from(bits(want) != bits(*h));
+                differ += usize::from(bits(want) != bits(hits.get(k)));
                 found += usize::from(want.is_some());
             }
             assert_eq!(differ, 0, "portable {portable}: {differ} hits differ");
             assert!(
                 found > 300 && found < 1000,
                 "{found} hits of {}",
-                hits.len()
+                patches.len()
             );
         }
     }

@@ -2,7 +2,7 @@
 //! Lambertian shading of procedural albedo, averaged over sub-frames spanning the exposure
 //! (physical motion blur). The sensors' noise is applied afterwards ([`super::sensor`]).
 
-use super::patch_hit::{intersect_neighbours, intersect_patches, PatchHit};
+use super::patch_hit::{intersect_neighbours, intersect_patches, RowHits};
 use super::pool::BufferPool;
 use super::raster::{PatchBuffer, TerrainRaster, NO_PATCH};
 use super::scene::Scene;
@@ -71,7 +71,7 @@ struct Shading {
     /// The row's ray directions (world, unit).
     dirs: Vec<[f64; 3]>,
     /// Each ray's hit on its own rasterised patch.
-    own: Vec<Option<PatchHit>>,
+    own: RowHits,
     /// Per pixel: z-depth (m), |cos| of the incidence, the surface to shade.
     z: Vec<f32>,
     cos: Vec<f32>,
@@ -187,8 +187,7 @@ impl<'a> Renderer<'a> {
         let pc = self.raster.patch_cols();
         let hints = patches.and_then(|p| p.patch.get(row * w..(row + 1) * w));
         // Each ray against its own patch, the whole row at once.
-        scratch.own.clear();
-        scratch.own.resize(rays.len(), None);
+        scratch.own.hit.clear();
         if let Some(hints) = hints {
             intersect_patches(
                 terrain,
@@ -206,26 +205,34 @@ impl<'a> Renderer<'a> {
         let mut marched = 0usize;
         for (k, (rc, &d)) in rays.iter().zip(&scratch.dirs).enumerate() {
             let hint = hints.map(|h| h.get(k).copied().unwrap_or(NO_PATCH));
-            let own = scratch.own.get(k).copied().flatten();
-            let hit =
-                self.scene
-                    .trace_with(o, d, self.max_t, cand, k as f64, row as f64, |limit| {
-                        match hint {
-                            // No triangle of the terrain covers this pixel centre: no terrain.
-                            Some(NO_PATCH) => return None,
-                            Some(patch) => {
-                                let near = own.or_else(|| {
-                                    intersect_neighbours(terrain, pc, patch, o, d, self.max_t)
-                                });
-                                if let Some((t, n)) = near {
-                                    return (t <= limit).then_some((t, Some(n)));
-                                }
-                            }
-                            None => {}
-                        }
-                        marched += 1;
-                        terrain.intersect(o, d, limit).map(|h| (h.t, None))
-                    });
+            let own = scratch.own.get(k);
+            let object = self
+                .scene
+                .trace_objects(o, d, self.max_t, cand, k as f64, row as f64);
+            let limit = object.map_or(self.max_t, |h| h.t);
+            // The terrain's hit before the nearest object: on the pixel's patch or a
+            // neighbour; marched where the raster has none to offer.
+            let mut march = || {
+                marched += 1;
+                terrain.intersect(o, d, limit).map(|h| (h.t, None))
+            };
+            let ground = match hint {
+                // No triangle of the terrain covers this pixel centre: no terrain.
+                Some(NO_PATCH) => None,
+                Some(patch) => {
+                    let near =
+                        own.or_else(|| intersect_neighbours(terrain, pc, patch, o, d, self.max_t));
+                    match near {
+                        Some((t, n)) => (t <= limit).then_some((t, Some(n))),
+                        None => march(),
+                    }
+                }
+                None => march(),
+            };
+            let hit = match ground {
+                Some((t, n)) => Some(self.scene.ground_hit(o, d, t, n)),
+                None => object,
+            };
             let (z, cos, surface) = match hit {
                 None => (0.0, 0.0, None),
                 Some(hit) => {

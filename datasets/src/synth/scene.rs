@@ -72,7 +72,7 @@ impl SceneBox {
     }
 
     /// Ray-box intersection (slab test in the box frame): `(t, normal, uv)` of the entry.
-    #[inline]
+    #[inline(always)]
     pub fn intersect(
         &self,
         o: [f64; 3],
@@ -337,18 +337,19 @@ impl Scene {
         u: f64,
         v: f64,
     ) -> Option<Hit> {
-        self.trace_with(o, d, t_max, candidates, u, v, |limit| {
-            self.terrain.intersect(o, d, limit).map(|h| (h.t, None))
-        })
+        let object = self.trace_objects(o, d, t_max, candidates, u, v);
+        match self.terrain.intersect(o, d, object.map_or(t_max, |h| h.t)) {
+            Some(h) => Some(self.ground_hit(o, d, h.t, None)),
+            None => object,
+        }
     }
 
-    /// As [`Self::trace`], with the terrain's hit found by `terrain_t`: given the nearest
-    /// object's distance (or `t_max`), it returns the terrain's first hit before it (m along
-    /// the ray), if any, with the surface normal there when already known. The rasteriser
-    /// passes an exact patch intersection here.
-    #[allow(clippy::too_many_arguments)]
+    /// The nearest object's hit along the unit ray `o + t d`, `t <= t_max`, testing only
+    /// the objects of `candidates` whose pixel box contains `(u, v)` (the terrain is the
+    /// caller's: the renderer intersects it with its rasterised patches, then decides with
+    /// [`Self::ground_hit`]).
     #[inline]
-    pub fn trace_with(
+    pub fn trace_objects(
         &self,
         o: [f64; 3],
         d: [f64; 3],
@@ -356,13 +357,12 @@ impl Scene {
         candidates: &[ScreenBox],
         u: f64,
         v: f64,
-        terrain_t: impl FnOnce(f64) -> Option<(f64, Option<[f64; 3]>)>,
     ) -> Option<Hit> {
         let boxes = candidates
             .iter()
             .filter(|sb| u >= sb.u0 && u <= sb.u1 && v >= sb.v0 && v <= sb.v1)
             .filter_map(|sb| self.boxes.get(sb.index));
-        self.nearest(o, d, t_max, boxes, terrain_t)
+        self.nearest_object(o, d, t_max, boxes)
     }
 
     /// First hit along the unit ray `o + t d`, `t <= t_max`, testing every object (for rays
@@ -373,8 +373,9 @@ impl Scene {
         })
     }
 
-    /// The nearest hit of the terrain (found by `terrain_t`, see [`Self::trace_with`]) and
-    /// `boxes`.
+    /// The nearest hit of the terrain (found by `terrain_t`: given the nearest object's
+    /// distance, or `t_max`, it returns the terrain's first hit before it, m along the ray,
+    /// with the surface normal there when already known) and `boxes`.
     #[inline]
     fn nearest<'s>(
         &self,
@@ -383,6 +384,22 @@ impl Scene {
         t_max: f64,
         boxes: impl Iterator<Item = &'s SceneBox>,
         terrain_t: impl FnOnce(f64) -> Option<(f64, Option<[f64; 3]>)>,
+    ) -> Option<Hit> {
+        let object = self.nearest_object(o, d, t_max, boxes);
+        match terrain_t(object.map_or(t_max, |h| h.t)) {
+            Some((t, normal)) => Some(self.ground_hit(o, d, t, normal)),
+            None => object,
+        }
+    }
+
+    /// The nearest hit among `boxes` along the unit ray `o + t d`, `t <= t_max`.
+    #[inline]
+    fn nearest_object<'s>(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t_max: f64,
+        boxes: impl Iterator<Item = &'s SceneBox>,
     ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut limit = t_max;
@@ -397,16 +414,20 @@ impl Scene {
                 });
             }
         }
-        if let Some((t, normal)) = terrain_t(limit) {
-            let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
-            best = Some(Hit {
-                t,
-                normal: normal.unwrap_or_else(|| self.terrain.normal(x, y)),
-                material: Material::Ground,
-                uv: (x, y),
-            });
-        }
         best
+    }
+
+    /// The terrain's hit `t` m along the unit ray `o + t d` (world), with its unit normal
+    /// when known (else the height field's there).
+    #[inline]
+    pub fn ground_hit(&self, o: [f64; 3], d: [f64; 3], t: f64, normal: Option<[f64; 3]>) -> Hit {
+        let (x, y) = (o[0] + t * d[0], o[1] + t * d[1]);
+        Hit {
+            t,
+            normal: normal.unwrap_or_else(|| self.terrain.normal(x, y)),
+            material: Material::Ground,
+            uv: (x, y),
+        }
     }
 
     /// The true terrain elevation at each cell centre of the terrain grid (m, world z up),
