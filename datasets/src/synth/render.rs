@@ -64,8 +64,9 @@ struct Surface {
     light: f64,
 }
 
-/// One task's buffers for shading a row: the row's surfaces, then its ground points
-/// gathered for the batch texture ([`ground_albedo`]).
+/// One task's buffers for tracing and shading a row: the rays, their hits on their own
+/// patches, the pixels' depth, incidence and surfaces, then the ground points gathered for
+/// the batch texture ([`ground_albedo`]).
 #[derive(Default)]
 struct Shading {
     /// The row's ray directions (world, unit).

@@ -338,10 +338,7 @@ impl Scene {
         v: f64,
     ) -> Option<Hit> {
         let object = self.trace_objects(o, d, t_max, candidates, u, v);
-        match self.terrain.intersect(o, d, object.map_or(t_max, |h| h.t)) {
-            Some(h) => Some(self.ground_hit(o, d, h.t, None)),
-            None => object,
-        }
+        self.or_terrain(o, d, t_max, object)
     }
 
     /// The nearest object's hit along the unit ray `o + t d`, `t <= t_max`, testing only
@@ -368,26 +365,16 @@ impl Scene {
     /// First hit along the unit ray `o + t d`, `t <= t_max`, testing every object (for rays
     /// that are not a camera's pixels, such as a laser scanner's beams).
     pub fn trace_ray(&self, o: [f64; 3], d: [f64; 3], t_max: f64) -> Option<Hit> {
-        self.nearest(o, d, t_max, self.boxes.iter(), |limit| {
-            self.terrain.intersect(o, d, limit).map(|h| (h.t, None))
-        })
+        let object = self.nearest_object(o, d, t_max, self.boxes.iter());
+        self.or_terrain(o, d, t_max, object)
     }
 
-    /// The nearest hit of the terrain (found by `terrain_t`: given the nearest object's
-    /// distance, or `t_max`, it returns the terrain's first hit before it, m along the ray,
-    /// with the surface normal there when already known) and `boxes`.
+    /// The terrain's first hit along the unit ray `o + t d` before `object` (the nearest
+    /// object's hit) or `t_max`, marched through the height field; else `object`.
     #[inline]
-    fn nearest<'s>(
-        &self,
-        o: [f64; 3],
-        d: [f64; 3],
-        t_max: f64,
-        boxes: impl Iterator<Item = &'s SceneBox>,
-        terrain_t: impl FnOnce(f64) -> Option<(f64, Option<[f64; 3]>)>,
-    ) -> Option<Hit> {
-        let object = self.nearest_object(o, d, t_max, boxes);
-        match terrain_t(object.map_or(t_max, |h| h.t)) {
-            Some((t, normal)) => Some(self.ground_hit(o, d, t, normal)),
+    fn or_terrain(&self, o: [f64; 3], d: [f64; 3], t_max: f64, object: Option<Hit>) -> Option<Hit> {
+        match self.terrain.intersect(o, d, object.map_or(t_max, |h| h.t)) {
+            Some(h) => Some(self.ground_hit(o, d, h.t, None)),
             None => object,
         }
     }
