@@ -4,6 +4,11 @@
 //! Ground: gravel and soil (value-noise octaves from 0.5 m down to 2 mm plus pebbles) with
 //! plain, low-texture concrete patches, as real floors have. Objects: tinted, printed
 //! surfaces (crates, cardboard). Walls: plaster with posters.
+//!
+//! The noise, the octaves, the pebbles and the ground's colour are written for `N` points
+//! at once (`*_lanes`, stages of loops over fixed-size lane arrays, so that LLVM
+//! vectorises them); the single-point functions are one lane of them, and
+//! [`super::texture_batch`] runs eight.
 
 /// A surface kind, for choosing its texture.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -82,51 +87,85 @@ pub fn fbm(
     gain: f64,
     footprint: f64,
 ) -> f64 {
-    let mut sum = 0.0;
+    let [v] = fbm_lanes(seed, &[x], &[y], longest, octaves, gain, &[footprint]);
+    v
+}
+
+/// [`fbm`] of `N` points: octaves run while any lane still weighs them; a lane whose
+/// weight has reached 0 adds exact zeros, as a single point's loop stops (one lane is
+/// [`fbm`]).
+#[inline(always)]
+pub(crate) fn fbm_lanes<const N: usize>(
+    seed: u32,
+    x: &[f64; N],
+    y: &[f64; N],
+    longest: f64,
+    octaves: u32,
+    gain: f64,
+    footprint: &[f64; N],
+) -> [f64; N] {
+    let (mut sum, mut norm) = ([0.0; N], [0.0; N]);
     let mut amp = 1.0;
-    let mut norm = 0.0;
     let mut lambda = longest;
+    // x / lambda as (x / longest) * 2^k: the same bits (scaling by a power of two commutes
+    // with rounding), one division per point instead of one per octave.
+    let (x, y) = (map(x, |x| x / longest), map(y, |y| y / longest));
+    let mut scale = 1.0;
     for k in 0..octaves {
-        let w = fbm_weight(lambda, footprint);
-        if w <= 0.0 {
+        let mut w = [0.0; N];
+        for (w, &f) in w.iter_mut().zip(footprint) {
+            *w = fbm_weight(lambda, f);
+        }
+        if w.iter().all(|&w| w <= 0.0) {
             break;
         }
-        sum += w * amp * value_noise(seed.wrapping_add(k * 7919), x / lambda, y / lambda);
-        norm += amp;
+        let s = seed.wrapping_add(k * 7919);
+        let n = value_noise_lanes(s, &map(&x, |x| x * scale), &map(&y, |y| y * scale));
+        for (((sum, norm), &w), &n) in sum.iter_mut().zip(&mut norm).zip(&w).zip(&n) {
+            *sum += w * amp * n;
+            if w > 0.0 {
+                *norm += amp;
+            }
+        }
         amp *= gain;
         lambda *= 0.5;
+        scale *= 2.0;
     }
-    if norm > 0.0 {
-        sum / norm * 1.6
-    } else {
-        0.0
+    let mut out = [0.0; N];
+    for (o, (&s, &n)) in out.iter_mut().zip(sum.iter().zip(&norm)) {
+        *o = if n > 0.0 { s / n * 1.6 } else { 0.0 };
     }
+    out
+}
+
+/// `f(x[i])` for each lane.
+#[inline(always)]
+fn map<const N: usize>(x: &[f64; N], f: impl Fn(f64) -> f64) -> [f64; N] {
+    let mut out = [0.0; N];
+    for (o, &x) in out.iter_mut().zip(x) {
+        *o = f(x);
+    }
+    out
 }
 
 /// The weight in [0, 1] of an octave of wavelength `lambda` (m) under a pixel footprint
 /// `footprint` (m): 1 from three footprints up, 0 at 1.5 and below. It only falls as the
 /// wavelength halves, so once 0 it stays 0.
 #[inline(always)]
-pub(crate) fn fbm_weight(lambda: f64, footprint: f64) -> f64 {
+fn fbm_weight(lambda: f64, footprint: f64) -> f64 {
     let ratio = lambda / footprint.max(1e-6);
     ((ratio - 1.5) / 1.5).clamp(0.0, 1.0)
 }
 
 /// The soil's albedo (0..255) between pebbles, before its noise.
-pub(crate) const SOIL: [f64; 3] = [128.0, 108.0, 84.0];
+const SOIL: [f64; 3] = [128.0, 108.0, 84.0];
 /// The plain concrete's albedo (0..255), before its noise.
-pub(crate) const CONCRETE: [f64; 3] = [152.0, 150.0, 144.0];
+const CONCRETE: [f64; 3] = [152.0, 150.0, 144.0];
 
-/// Pebbles: distance to the nearest jittered cell centre (cell size `cell`, m), as
-/// `(brightness factor, edge darkening)` in `[0.6, 1.4]` and `[0, 1]`.
-#[inline(always)]
-pub(crate) fn pebbles(seed: u32, x: f64, y: f64, cell: f64) -> (f64, f64) {
-    let [p] = pebbles_lanes(seed, &[x], &[y], cell);
-    p
-}
-
-/// [`pebbles`] of `N` points `(x[l], y[l])` (m), written lane by lane in stages so that a
-/// batch of points vectorises (`texture_batch`); one lane is [`pebbles`].
+/// Pebbles at `N` points `(x[l], y[l])` (m): the distance to the nearest jittered cell
+/// centre (cell size `cell`, m), as `(brightness factor, edge darkening)` in `[0.6, 1.4]`
+/// and `[0, 1]` per point. Stages over the lanes (each cell's hashes and centres, then the
+/// nearest-two updates) so that a batch vectorises.
 #[inline(always)]
 // Lanes of fixed-size arrays, all indexed below N.
 #[allow(clippy::needless_range_loop)]
@@ -170,12 +209,80 @@ pub(crate) fn pebbles_lanes<const N: usize>(
     out
 }
 
+#[inline(always)]
 fn mix(a: [f64; 3], b: [f64; 3], t: f64) -> [f64; 3] {
     [
         a[0] + (b[0] - a[0]) * t,
         a[1] + (b[1] - a[1]) * t,
         a[2] + (b[2] - a[2]) * t,
     ]
+}
+
+/// The ground's albedo of `N` points (see [`albedo`]): every lane computes every
+/// branch's value and keeps what the single point would have; one lane is the ground of
+/// [`albedo`], eight are a batch of `texture_batch`.
+#[inline(always)]
+pub(crate) fn ground_lanes<const N: usize>(
+    seed: u32,
+    u: &[f64; N],
+    v: &[f64; N],
+    footprint: &[f64; N],
+) -> [[f64; 3]; N] {
+    let noise = value_noise_lanes(seed ^ 0xA5, &map(u, |u| u / 2.2), &map(v, |v| v / 2.2));
+    let mut plain = [0.0; N];
+    for (p, ((&n, &u), &v)) in plain.iter_mut().zip(noise.iter().zip(u).zip(v)) {
+        let zone = n - 0.6 * (-(u * u + v * v) / 2.0).exp();
+        *p = ((zone - 0.55) / 0.15).clamp(0.0, 1.0);
+    }
+    let any_plain = plain.iter().any(|&p| p > 0.0);
+    let all_plain = plain.iter().all(|&p| p >= 1.0);
+    let concrete = if any_plain {
+        fbm_lanes(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint)
+    } else {
+        [0.0; N]
+    };
+    let detail = if all_plain {
+        [0.0; N]
+    } else {
+        fbm_lanes(seed, u, v, 0.5, 8, 0.62, footprint)
+    };
+    let cell = 0.025;
+    let mut pw = [0.0; N];
+    for (w, &f) in pw.iter_mut().zip(footprint) {
+        *w = ((cell / f.max(1e-6) - 2.0) / 2.0).clamp(0.0, 1.0);
+    }
+    let pebble = if pw.iter().any(|&w| w > 0.0) {
+        pebbles_lanes(seed ^ 0x51, u, v, cell)
+    } else {
+        [(0.0, 0.0); N]
+    };
+    let mut out = [[0.0; 3]; N];
+    for (l, o) in out.iter_mut().enumerate() {
+        let (Some(&p), Some(&cn), Some(&dt), Some(&w), Some(&(b, edge))) = (
+            plain.get(l),
+            concrete.get(l),
+            detail.get(l),
+            pw.get(l),
+            pebble.get(l),
+        ) else {
+            continue;
+        };
+        let concrete = CONCRETE.map(|x| x * (1.0 + 0.035 * cn));
+        if p >= 1.0 {
+            *o = concrete;
+            continue;
+        }
+        let mut c = SOIL.map(|x| x * (1.0 + 0.32 * dt));
+        if w > 0.0 {
+            let tint = [b * 1.05, b, b * 0.92];
+            let pebble = [c[0] * tint[0], c[1] * tint[1], c[2] * tint[2]];
+            let s = 1.0 - 0.45 * edge;
+            let pebble = pebble.map(|x| x * s);
+            c = mix(c, pebble, w * 0.9);
+        }
+        *o = if p <= 0.0 { c } else { mix(c, concrete, p) };
+    }
+    out
 }
 
 fn scale(c: [f64; 3], s: f64) -> [f64; 3] {
@@ -189,37 +296,8 @@ fn scale(c: [f64; 3], s: f64) -> [f64; 3] {
 pub fn albedo(material: Material, u: f64, v: f64, footprint: f64, seed: u32) -> [f64; 3] {
     match material {
         Material::Ground => {
-            // Large zones: plain concrete patches (low texture) among gravel and soil.
-            // About one tenth of the floor is plain; never the start area around the origin.
-            let zone =
-                value_noise(seed ^ 0xA5, u / 2.2, v / 2.2) - 0.6 * (-(u * u + v * v) / 2.0).exp();
-            let plain = ((zone - 0.55) / 0.15).clamp(0.0, 1.0);
-            if plain >= 1.0 {
-                return scale(
-                    CONCRETE,
-                    1.0 + 0.035 * fbm(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint),
-                );
-            }
-            let detail = fbm(seed, u, v, 0.5, 8, 0.62, footprint);
-            let mut c = scale(SOIL, 1.0 + 0.32 * detail);
-            // Pebbles about 2.5 cm across, fading out when smaller than ~3 pixels.
-            let cell = 0.025;
-            let pw = ((cell / footprint.max(1e-6) - 2.0) / 2.0).clamp(0.0, 1.0);
-            if pw > 0.0 {
-                let (b, edge) = pebbles(seed ^ 0x51, u, v, cell);
-                let tint = [b * 1.05, b, b * 0.92];
-                let pebble = [c[0] * tint[0], c[1] * tint[1], c[2] * tint[2]];
-                let pebble = scale(pebble, 1.0 - 0.45 * edge);
-                c = mix(c, pebble, pw * 0.9);
-            }
-            if plain <= 0.0 {
-                return c;
-            }
-            let concrete = scale(
-                CONCRETE,
-                1.0 + 0.035 * fbm(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint),
-            );
-            mix(c, concrete, plain)
+            let [c] = ground_lanes(seed, &[u], &[v], &[footprint]);
+            c
         }
         Material::Object(id) => {
             const PALETTE: [[f64; 3]; 6] = [

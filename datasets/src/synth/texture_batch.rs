@@ -1,15 +1,14 @@
-//! The ground's albedo for many surface points at once, bit for bit what
-//! [`super::texture::albedo`] gives for each, in a layout that vectorises.
+//! The ground's albedo for a row of surface points at once, bit for bit what
+//! [`super::texture::albedo`] gives for each.
 //!
-//! The scalar texture walks one point through its octaves and pebble cells with early exits.
-//! Here [`LANES`] points go through each step together: every lane computes every octave
-//! up to the last one any lane needs and every branch's value, and selects per lane what
-//! the scalar code would have kept. Nothing is reordered, and an octave a lane would have
-//! skipped adds an exact zero, so each lane's arithmetic is the scalar's. The loops run
-//! through `stride_core::simd::dispatch`, which compiles them once more for AVX2 (4 f64
-//! lanes) on CPUs that have it.
+//! The ground's texture is written lane by lane ([`super::texture`]'s `_lanes` functions:
+//! every lane computes every octave up to the last one any lane needs and every branch's
+//! value, and keeps what a single point would have; an octave a lane does not need adds an
+//! exact zero). One lane is [`super::texture::albedo`]'s ground; here [`LANES`] points go
+//! through together, in loops that vectorise, through `stride_core::simd::dispatch`, which
+//! compiles them once more for AVX2 (4 f64 lanes) on CPUs that have it.
 
-use super::texture::{fbm_weight, pebbles_lanes, value_noise_lanes, CONCRETE, SOIL};
+use super::texture::ground_lanes;
 
 /// Points per batch: two AVX2 registers of f64.
 pub const LANES: usize = 8;
@@ -71,123 +70,6 @@ fn copy_into(dst: &mut L, src: &[f64]) {
     for (d, s) in dst.iter_mut().zip(src) {
         *d = *s;
     }
-}
-
-/// `f(x[i])` for each lane.
-#[inline(always)]
-fn map(x: &L, f: impl Fn(f64) -> f64) -> L {
-    let mut out = [0.0; LANES];
-    for (o, &x) in out.iter_mut().zip(x) {
-        *o = f(x);
-    }
-    out
-}
-
-/// The ground's albedo of [`LANES`] points (see [`super::texture::albedo`]).
-#[inline(always)]
-fn ground_lanes(seed: u32, u: &L, v: &L, footprint: &L) -> [[f64; 3]; LANES] {
-    let noise = value_noise_lanes(seed ^ 0xA5, &map(u, |u| u / 2.2), &map(v, |v| v / 2.2));
-    let mut plain = [0.0; LANES];
-    for (p, ((&n, &u), &v)) in plain.iter_mut().zip(noise.iter().zip(u).zip(v)) {
-        let zone = n - 0.6 * (-(u * u + v * v) / 2.0).exp();
-        *p = ((zone - 0.55) / 0.15).clamp(0.0, 1.0);
-    }
-    let any_plain = plain.iter().any(|&p| p > 0.0);
-    let all_plain = plain.iter().all(|&p| p >= 1.0);
-    let concrete = if any_plain {
-        fbm_lanes(seed ^ 0x3C, u, v, 0.8, 4, 0.5, footprint)
-    } else {
-        [0.0; LANES]
-    };
-    let detail = if all_plain {
-        [0.0; LANES]
-    } else {
-        fbm_lanes(seed, u, v, 0.5, 8, 0.62, footprint)
-    };
-    let cell = 0.025;
-    let mut pw = [0.0; LANES];
-    for (w, &f) in pw.iter_mut().zip(footprint) {
-        *w = ((cell / f.max(1e-6) - 2.0) / 2.0).clamp(0.0, 1.0);
-    }
-    let pebble = if pw.iter().any(|&w| w > 0.0) {
-        pebbles_lanes(seed ^ 0x51, u, v, cell)
-    } else {
-        [(0.0, 0.0); LANES]
-    };
-    let mut out = [[0.0; 3]; LANES];
-    for (l, o) in out.iter_mut().enumerate() {
-        let (Some(&p), Some(&cn), Some(&dt), Some(&w), Some(&(b, edge))) = (
-            plain.get(l),
-            concrete.get(l),
-            detail.get(l),
-            pw.get(l),
-            pebble.get(l),
-        ) else {
-            continue;
-        };
-        let concrete = CONCRETE.map(|x| x * (1.0 + 0.035 * cn));
-        if p >= 1.0 {
-            *o = concrete;
-            continue;
-        }
-        let mut c = SOIL.map(|x| x * (1.0 + 0.32 * dt));
-        if w > 0.0 {
-            let tint = [b * 1.05, b, b * 0.92];
-            let pebble = [c[0] * tint[0], c[1] * tint[1], c[2] * tint[2]];
-            let s = 1.0 - 0.45 * edge;
-            let pebble = pebble.map(|x| x * s);
-            c = mix(c, pebble, w * 0.9);
-        }
-        *o = if p <= 0.0 { c } else { mix(c, concrete, p) };
-    }
-    out
-}
-
-#[inline(always)]
-fn mix(a: [f64; 3], b: [f64; 3], t: f64) -> [f64; 3] {
-    [
-        a[0] + (b[0] - a[0]) * t,
-        a[1] + (b[1] - a[1]) * t,
-        a[2] + (b[2] - a[2]) * t,
-    ]
-}
-
-/// [`super::texture::fbm`] of [`LANES`] points: octaves run while any lane still weighs
-/// them; a lane whose weight has reached 0 adds exact zeros, as the scalar loop stops.
-#[inline(always)]
-fn fbm_lanes(seed: u32, x: &L, y: &L, longest: f64, octaves: u32, gain: f64, footprint: &L) -> L {
-    let (mut sum, mut norm) = ([0.0; LANES], [0.0; LANES]);
-    let mut amp = 1.0;
-    let mut lambda = longest;
-    // x / lambda as (x / longest) * 2^k: the same bits (scaling by a power of two commutes
-    // with rounding), one division per point instead of one per octave.
-    let (x, y) = (map(x, |x| x / longest), map(y, |y| y / longest));
-    let mut scale = 1.0;
-    for k in 0..octaves {
-        let mut w = [0.0; LANES];
-        for (w, &f) in w.iter_mut().zip(footprint) {
-            *w = fbm_weight(lambda, f);
-        }
-        if w.iter().all(|&w| w <= 0.0) {
-            break;
-        }
-        let s = seed.wrapping_add(k * 7919);
-        let n = value_noise_lanes(s, &map(&x, |x| x * scale), &map(&y, |y| y * scale));
-        for (((sum, norm), &w), &n) in sum.iter_mut().zip(&mut norm).zip(&w).zip(&n) {
-            *sum += w * amp * n;
-            if w > 0.0 {
-                *norm += amp;
-            }
-        }
-        amp *= gain;
-        lambda *= 0.5;
-        scale *= 2.0;
-    }
-    let mut out = [0.0; LANES];
-    for (o, (&s, &n)) in out.iter_mut().zip(sum.iter().zip(&norm)) {
-        *o = if n > 0.0 { s / n * 1.6 } else { 0.0 };
-    }
-    out
 }
 
 #[cfg(test)]
