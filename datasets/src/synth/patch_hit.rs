@@ -1,7 +1,7 @@
 //! Exact ray hits on the terrain's bilinear patches: one ray ([`intersect_patch`]), one ray
-//! and the patches around it ([`intersect_near_patch`]), and a row of rays at once
+//! and the patches around one ([`intersect_neighbours`]), and a row of rays at once
 //! ([`intersect_patches`]), the last written to vectorise and giving each ray's hit bit for
-//! bit as the first.
+//! bit as the first (one source: the single ray is one lane).
 //!
 //! Frames: the terrain and the rays are in the world frame (z up, m). A patch is the square
 //! between four cell centres of the height field, indexed `row * patch_cols + col`
@@ -17,25 +17,11 @@ pub type PatchHit = (f64, [f64; 3]);
 /// Rays per batch of [`intersect_patches`]: two AVX2 registers of f64.
 const LANES: usize = 8;
 
-/// The terrain's first hit along the unit ray `o + t d` (world, m), `t <= t_max`, looked
-/// for in rasterised `patch` and, if the ray misses it (the raster came from a slightly
-/// different pose, or a triangle's edge differs from the bilinear surface), in its eight
-/// neighbours. Returns the distance (m) and the unit surface normal (world); `None` means:
-/// march the ray.
-pub fn intersect_near_patch(
-    terrain: &HeightField,
-    patch_cols: usize,
-    patch: u32,
-    o: [f64; 3],
-    d: [f64; 3],
-    t_max: f64,
-) -> Option<PatchHit> {
-    intersect_patch(terrain, patch_cols, patch, o, d, t_max)
-        .or_else(|| intersect_neighbours(terrain, patch_cols, patch, o, d, t_max))
-}
-
-/// The nearest hit along the ray in the eight patches around `patch` (see
-/// [`intersect_near_patch`]).
+/// The nearest hit along the unit ray `o + t d` (world, m), `t <= t_max`, in the eight
+/// patches around `patch`: where a ray misses its rasterised patch (the raster came from a
+/// slightly different pose, or a triangle's edge differs from the bilinear surface), the
+/// renderer looks here before it marches the ray. Returns the distance (m) and the unit
+/// surface normal (world).
 pub fn intersect_neighbours(
     terrain: &HeightField,
     patch_cols: usize,

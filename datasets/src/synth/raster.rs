@@ -403,14 +403,7 @@ fn triangle_work(upper: &[Vertex], lower: &[Vertex], band: &Band<'_>) -> [u8; BL
         band.row0 as f32,
         band.row1 as f32 - 1.0,
     );
-    // The same bounding-box test as `Band::triangle`'s first lines.
-    let holds_pixel = |p: [f32; 3], q: [f32; 3]| {
-        let umin = p[0].min(p[1]).min(p[2]).ceil().max(0.0);
-        let umax = p[0].max(p[1]).max(p[2]).floor().min(u_last);
-        let vmin = q[0].min(q[1]).min(q[2]).ceil().max(v_first);
-        let vmax = q[0].max(q[1]).max(q[2]).floor().min(v_last);
-        !(umin > umax || vmin > vmax)
-    };
+    let holds_pixel = |u: [f32; 3], v: [f32; 3]| pixel_box(u, v, u_last, v_first, v_last).is_some();
     let code = |front: u8, holds: bool| match front {
         3 => DRAW * u8::from(holds),
         0 => 0,
@@ -427,6 +420,24 @@ fn triangle_work(upper: &[Vertex], lower: &[Vertex], band: &Band<'_>) -> [u8; BL
         work[j] = first | (second << 2);
     }
     work
+}
+
+/// The pixel centres a triangle with vertices at columns `u` and rows `v` (px) may cover:
+/// its bounding box rounded inwards and clipped to columns `0..=u_last` and rows
+/// `v_first..=v_last`, as `(umin, umax, vmin, vmax)`; `None` when it holds none.
+#[inline(always)]
+fn pixel_box(
+    u: [f32; 3],
+    v: [f32; 3],
+    u_last: f32,
+    v_first: f32,
+    v_last: f32,
+) -> Option<(f32, f32, f32, f32)> {
+    let umin = u[0].min(u[1]).min(u[2]).ceil().max(0.0);
+    let umax = u[0].max(u[1]).max(u[2]).floor().min(u_last);
+    let vmin = v[0].min(v[1]).min(v[2]).ceil().max(v_first);
+    let vmax = v[0].max(v[1]).max(v[2]).floor().min(v_last);
+    (!(umin > umax || vmin > vmax)).then_some((umin, umax, vmin, vmax))
 }
 
 /// Clips a triangle against the near plane and emits the projected pieces (one or two).
@@ -478,17 +489,15 @@ impl Band<'_> {
     /// inside it (edges included, so shared edges leave no cracks) whose `1/z` is larger.
     #[inline]
     fn triangle(&mut self, a: [f32; 3], b: [f32; 3], c: [f32; 3], id: u32) {
-        let umin = a[0].min(b[0]).min(c[0]).ceil().max(0.0);
-        let umax = a[0]
-            .max(b[0])
-            .max(c[0])
-            .floor()
-            .min(self.width as f32 - 1.0);
-        let vmin = a[1].min(b[1]).min(c[1]).ceil().max(self.row0 as f32);
-        let vmax = a[1].max(b[1]).max(c[1]).floor().min(self.row1 as f32 - 1.0);
-        if umin > umax || vmin > vmax {
+        let Some((umin, umax, vmin, vmax)) = pixel_box(
+            [a[0], b[0], c[0]],
+            [a[1], b[1], c[1]],
+            self.width as f32 - 1.0,
+            self.row0 as f32,
+            self.row1 as f32 - 1.0,
+        ) else {
             return;
-        }
+        };
         let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
         if area.abs() < 1e-9 {
             return;
