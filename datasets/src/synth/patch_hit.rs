@@ -100,7 +100,7 @@ impl RowHits {
 
 /// Fills `hits` with, for each ray `k` of a row, `intersect_patch(terrain, patch_cols,
 /// patches[k], o, dirs[k], t_max)`, and no hit where `patches[k]` is [`NO_PATCH`]; bit for
-/// bit the same. Rays go through the arithmetic [`LANES`] at a time, compiled for AVX2
+/// bit the same. Rays go through the arithmetic eight at a time, compiled for AVX2
 /// where the CPU has it (`stride_core::simd`). One entry per ray of the shorter of
 /// `patches` and `dirs`.
 pub fn intersect_patches(

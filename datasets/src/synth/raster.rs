@@ -4,8 +4,8 @@
 //! a ray. Rasterising instead projects each patch (the square between four cell centres,
 //! split into two triangles) once per frame into a depth buffer, which names the nearest
 //! patch under every pixel centre; the ray is then intersected exactly with that one
-//! bilinear patch ([`intersect_patch`]), or with a neighbour when it misses that one. Where
-//! all of those fail, the caller marches the ray as before. A pixel that no triangle covers
+//! bilinear patch ([`super::patch_hit::intersect_patch`]), or with a neighbour when it
+//! misses that one. Where all of those fail, the caller marches the ray as before. A pixel that no triangle covers
 //! sees no terrain; the triangles share their edges with the bilinear patches, so such a
 //! pixel could only differ where a patch bulges above its two triangles at a silhouette.
 //! Against the marched reference (tests/render_raster.rs) no pixel changed from hit to
