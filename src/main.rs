@@ -23,6 +23,17 @@ fn report(e: &anyhow::Error) -> String {
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     cli::init_logging(args.verbose, args.quiet);
+    // The parallel stages started from this thread (the odometry, maps on known poses, the
+    // benchmarks) run on a pool it belongs to: handed to rayon's global pool from a thread
+    // that waits for them, they lose a worker now and then (`stride_core::parallel`; the
+    // back end's and the map's threads have pools of their own).
+    let _pool = match stride_core::parallel::join_own_pool("stride-main") {
+        Ok(pool) => pool,
+        Err(e) => {
+            eprintln!("error: could not start the worker threads: {e}");
+            return std::process::ExitCode::from(2);
+        }
+    };
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -6,6 +6,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use crate::ba::SolveReport;
 use crate::backend::{Backend, KeyframeInput};
 use crate::config::{BackendConfig, BackendMode};
 use crate::thread::BackendThread;
@@ -305,6 +306,35 @@ fn identical_runs_give_identical_maps() {
             })
     };
     assert_eq!(poses(1), poses(2));
+}
+
+#[test]
+fn the_thread_gives_the_map_and_final_optimization_of_the_back_end_run_directly() {
+    // The thread runs bundle adjustment, the final optimization included, on a pool of its
+    // own: the same numbers as on the caller's.
+    let run = synthetic_run(25, 0.003, 5);
+    let mut direct = Backend::new(camera(), BackendConfig::default()).unwrap();
+    for input in run.inputs.clone() {
+        direct.add_keyframe(input).unwrap();
+    }
+    let direct_solve = direct.finish().unwrap();
+    let mut thread =
+        BackendThread::spawn(Backend::new(camera(), BackendConfig::default()).unwrap()).unwrap();
+    for input in run.inputs.clone() {
+        thread.send(input).unwrap();
+    }
+    let done = thread.finish().unwrap();
+    // Everything but the time it took.
+    let untimed = |r: Option<SolveReport>| r.map(|r| SolveReport { time_s: 0.0, ..r });
+    assert!(direct_solve.is_some(), "a final optimization ran");
+    assert_eq!(untimed(done.final_solve), untimed(direct_solve));
+    for k in 0..25 {
+        assert_eq!(
+            done.backend.map().pose_of(k),
+            direct.map().pose_of(k),
+            "keyframe {k}"
+        );
+    }
 }
 
 #[test]

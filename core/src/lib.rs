@@ -25,6 +25,7 @@ pub mod frame;
 pub mod geometry;
 pub mod grid;
 pub mod image;
+pub mod parallel;
 pub mod plane;
 pub mod pose;
 pub mod range_sensor;

@@ -60,6 +60,17 @@ impl TerrainThread {
         let handle = std::thread::Builder::new()
             .name("stride-map".into())
             .spawn(move || {
+                // Kept for the thread's life: the map's parallel stages run on it
+                // (`stride_core::parallel`: handed to the global pool from here, 5-10 % of
+                // the updates ran at one worker's speed).
+                let _pool = match stride_core::parallel::join_own_pool("stride-map") {
+                    Ok(pool) => pool,
+                    Err(e) => {
+                        let message = format!("could not start its worker pool: {e}");
+                        let _ = err_tx.send(PipelineError::MapThread(message));
+                        return terrain;
+                    }
+                };
                 while let Ok(request) = req_rx.recv() {
                     let result = match request {
                         Request::View {
