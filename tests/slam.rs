@@ -30,7 +30,7 @@ fn teddy_bundle_adjustment_runs_and_its_live_poses_keep_level_with_the_odometry_
     // SLAM's odometry took the back end's noise model (2026-11-27) this start is no longer
     // its best one: over teddy_200 started at frames 0, 5, 10, 20 and 30 (seeds 1-3) the
     // final ATE is 6.24 mm in the mean (it was 6.87, and 4.5 from frame 0), the odometry
-    // alone's 6.66 and ORB-SLAM3's 6.54 (docs/slam.md, "One noise model"). The bound was
+    // alone's 6.66 and ORB-SLAM3's 6.54 (docs/slam-measured.md, "One noise model"). The bound was
     // 5.5 mm, with the final ATE below 0.8 times the odometry alone's; it now guards this
     // start's level.
     assert!(ate_ba <= 0.007, "ATE with bundle adjustment {ate_ba} m");

@@ -99,7 +99,7 @@ pub struct BackendConfig {
     pub final_max_keyframes: usize,
     /// A revisit link (which ties a keyframe to one of an earlier pass) is spread by the
     /// final optimization over at most this many of the newest keyframes; the older ones
-    /// stay where the local windows left them (docs/slam.md, "The final optimization's
+    /// stay where the local windows left them (docs/slam-measured.md, "The final optimization's
     /// span"). A loop closure and a weak keyframe's depth link free the whole span (up to
     /// `final_max_keyframes`).
     pub final_revisit_link_keyframes: usize,
@@ -112,7 +112,7 @@ pub struct BackendConfig {
     /// A keyframe is culled once it has settled (`window_keyframes + point_grace_keyframes`
     /// keyframes later) when an older keyframe stands within this distance of it (m): a
     /// later pass over a place keeps the keyframes of the first instead of adding its own
-    /// (docs/slam.md, "Revisits keep the map flat"). 0: never. Bundle-adjustment mode only.
+    /// (docs/slam-gaps.md, "Revisits keep the map flat"). 0: never. Bundle-adjustment mode only.
     pub revisit_cull_radius_m: f64,
     /// ... looking within this angle of it (degrees), and at least `revisit.min_keyframe_gap`
     /// keyframes older (an earlier pass, as for the revisit links).

@@ -59,7 +59,7 @@ impl Backend {
     /// re-observed), and its frames follow; so passing the same place again does not grow
     /// the map. Kept relative to its neighbour in time instead, a later pass's keyframes
     /// culled one after another would hang in a chain from the last one kept, and every
-    /// correction of that one would swing the whole chain (docs/slam.md, "Revisits keep the
+    /// correction of that one would swing the whole chain (docs/slam-gaps.md, "Revisits keep the
     /// map flat"). Returns how many were removed (0 or 1). Bundle-adjustment mode only: the
     /// pose graph, whose edges join covisible keyframes, lost accuracy without the later
     /// passes' keyframes.

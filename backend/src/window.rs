@@ -75,7 +75,7 @@ pub(crate) fn local_window(map: &Map, newest: KeyframeId, cfg: &BackendConfig) -
 /// alone tie them, the newest keyframe's local window, the only keyframes local
 /// optimizations have not settled: freeing every keyframe there lets the depth's correlated
 /// errors bend the whole trajectory, worse than the live poses on real sequences
-/// (docs/slam.md, "The final optimization"). Empty with fewer than two keyframes.
+/// (docs/slam-measured.md, "The final optimization"). Empty with fewer than two keyframes.
 pub(crate) fn final_free(
     map: &Map,
     pose_edges: &[KeyframeEdge],

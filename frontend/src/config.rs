@@ -107,7 +107,7 @@ pub struct VoConfig {
     /// a frame after a dropped one: a 68 mm step where the truth is 21 mm, found on 70
     /// inliers; the right motion has 87). 100 draws took teddy_200's five starts from
     /// 6.24 to 5.71 mm and that blurred run from 7.96 to 6.62 mm, for 0.2-0.3 ms a frame
-    /// (docs/slam.md).
+    /// (docs/slam-measured.md, "RANSAC draws at least 100 samples").
     pub ransac_min_iterations: usize,
     /// Fewest inliers for a motion estimate to be accepted.
     pub min_inliers: usize,

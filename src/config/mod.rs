@@ -36,7 +36,7 @@ impl Default for Config {
     /// 3 times less than the sensor model), and the measurements it hands over already carry
     /// that factor, so the back end takes their depth as it comes (`depth_noise_scale` 1:
     /// the factor applies once). Measured 2026-11-27 against the odometry's earlier 2 cm
-    /// (docs/slam.md, "One noise model"): over five starts of teddy_200 the final ATE fell
+    /// (docs/slam-measured.md, "One noise model"): over five starts of teddy_200 the final ATE fell
     /// from 6.87 to 6.24 mm and the live one from 6.82 to 5.67 mm, every 10th frame's live
     /// ATE from 11.2 to 4.0 mm, and five synthetic walks by 14-43 %.
     fn default() -> Self {
