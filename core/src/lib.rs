@@ -16,9 +16,11 @@
 //! * [`time`]: timestamps (seconds) and the TUM and evo rules for associating them.
 //! * [`uncertainty`]: per-point 3x3 covariances of RGB-D measurements (PrimeSense model).
 //! * [`simd`]: loops written to vectorise run a copy compiled for AVX2 where the CPU has it.
+//! * [`parallel`]: a thread's own rayon pool, for the threads that start parallel stages.
 //!
 //! This crate holds types and models only (no file I/O) and depends on nalgebra (and
-//! `pulp`, for [`simd`]), so that mapping and evaluation can serve any SLAM.
+//! `pulp` for [`simd`], `rayon` for [`parallel`]), so that mapping and evaluation can serve
+//! any SLAM.
 
 pub mod camera;
 pub mod frame;
