@@ -30,7 +30,7 @@ fn main() -> std::process::ExitCode {
     let _pool = match stride_core::parallel::join_own_pool("stride-main") {
         Ok(pool) => pool,
         Err(e) => {
-            eprintln!("error: could not start the worker threads: {e}");
+            eprintln!("error: {e}");
             return std::process::ExitCode::from(2);
         }
     };

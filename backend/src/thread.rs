@@ -59,8 +59,7 @@ impl BackendThread {
                 let _pool = match stride_core::parallel::join_own_pool("stride-backend") {
                     Ok(pool) => pool,
                     Err(e) => {
-                        let message = format!("could not start its worker pool: {e}");
-                        let _ = upd_tx.send(Err(BackendError::ThreadDied(message)));
+                        let _ = upd_tx.send(Err(BackendError::ThreadDied(e.to_string())));
                         return (backend, None);
                     }
                 };

@@ -15,19 +15,35 @@
 //! Results never depend on which pool runs a stage: every parallel stage of the workspace
 //! splits its work into a fixed number of parts.
 
-/// A rayon pool with rayon's default thread count (`RAYON_NUM_THREADS`, else the logical
-/// CPUs) whose worker 0 is the calling thread: the parallel stages the thread starts from
-/// now on run on this pool, with the thread taking part (see the module documentation),
-/// for as long as the returned pool lives. Build it once, at the start of the thread; a
-/// thread belongs to at most one pool, so a second call on the same thread fails. The other
-/// workers are named `{name}-1`, `{name}-2`, ...
-pub fn join_own_pool(name: &str) -> Result<rayon::ThreadPool, rayon::ThreadPoolBuildError> {
-    let name = name.to_owned();
+/// A rayon pool of as many threads as rayon's global pool has (by default
+/// `RAYON_NUM_THREADS`, else the logical CPUs), whose worker 0 is the calling thread: the
+/// parallel stages the thread starts from now on run on this pool, with the thread taking
+/// part (see the module documentation), for as long as the returned pool lives. Build it
+/// once, at the start of the thread; a thread belongs to at most one pool, so a second call
+/// on the same thread fails. The other workers are named `{name}-1`, `{name}-2`, ...
+pub fn join_own_pool(name: &str) -> Result<rayon::ThreadPool, PoolError> {
+    let owned = name.to_owned();
     rayon::ThreadPoolBuilder::new()
         .num_threads(rayon::current_num_threads())
-        .thread_name(move |i| format!("{name}-{i}"))
+        .thread_name(move |i| format!("{owned}-{i}"))
         .use_current_thread()
         .build()
+        .map_err(|source| PoolError {
+            name: name.to_owned(),
+            source,
+        })
+}
+
+/// Why [`join_own_pool`] could not start a thread's pool (its threads could not be spawned,
+/// or the thread already belongs to a pool).
+#[derive(Debug, thiserror::Error)]
+#[error("could not start the worker pool of thread {name}: {source}")]
+pub struct PoolError {
+    /// The thread's name, as given to [`join_own_pool`].
+    pub name: String,
+    /// rayon's reason.
+    #[source]
+    pub source: rayon::ThreadPoolBuildError,
 }
 
 #[cfg(test)]

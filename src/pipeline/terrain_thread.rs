@@ -66,8 +66,7 @@ impl TerrainThread {
                 let _pool = match stride_core::parallel::join_own_pool("stride-map") {
                     Ok(pool) => pool,
                     Err(e) => {
-                        let message = format!("could not start its worker pool: {e}");
-                        let _ = err_tx.send(PipelineError::MapThread(message));
+                        let _ = err_tx.send(PipelineError::MapThread(e.to_string()));
                         return terrain;
                     }
                 };

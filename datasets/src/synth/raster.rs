@@ -5,9 +5,10 @@
 //! split into two triangles) once per frame into a depth buffer, which names the nearest
 //! patch under every pixel centre; the ray is then intersected exactly with that one
 //! bilinear patch ([`super::patch_hit::intersect_patch`]), or with a neighbour when it
-//! misses that one. Where all of those fail, the caller marches the ray as before. A pixel that no triangle covers
-//! sees no terrain; the triangles share their edges with the bilinear patches, so such a
-//! pixel could only differ where a patch bulges above its two triangles at a silhouette.
+//! misses that one. Where all of those fail, the caller marches the ray as before. A pixel
+//! that no triangle covers sees no terrain; the triangles share their edges with the
+//! bilinear patches, so such a pixel could only differ where a patch bulges above its two
+//! triangles at a silhouette.
 //! Against the marched reference (tests/render_raster.rs) no pixel changed from hit to
 //! miss or back, and depth moved by more than 1 mm at under 0.01 % of pixels.
 //!
