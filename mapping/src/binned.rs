@@ -357,7 +357,7 @@ impl<'a, M: ?Sized> DepthSlice<'a, M> {
     /// neighbour along its row or its column farther than it by more than
     /// [`EdgeFilter::threshold_m`] and a missing return one or two pixels away on the
     /// opposite side. Such a pixel sits between a hole and a farther surface: a flying
-    /// pixel beside the hole a foreground edge leaves (docs/mapping-studies.md,
+    /// pixel beside the hole a foreground edge leaves (docs/mapping-faces.md,
     /// "Slivers beside holes"). Never without a filter.
     pub(crate) fn is_sliver(&self, u: usize, v: usize, d: f64) -> bool
     where
