@@ -272,7 +272,8 @@ impl BackendConfig {
             return bad(
                 "loop_closure",
                 format!("{l:?}"),
-                "search_radius_m > 0, candidates >= 1, min_inliers >= 6, appearance_candidates <= 100, matched_candidates 1 to 100",
+                "search_radius_m > 0, candidates >= 1, min_inliers >= 6, \
+                 appearance_candidates <= 100, matched_candidates 1 to 100",
             );
         }
         let r = &self.revisit;
