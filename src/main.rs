@@ -27,14 +27,11 @@ fn main() -> std::process::ExitCode {
     // benchmarks) run on a pool it belongs to: handed to rayon's global pool from a thread
     // that waits for them, they lose a worker now and then (`stride_core::parallel`; the
     // back end's and the map's threads have pools of their own).
-    let _pool = match stride_core::parallel::join_own_pool("stride-main") {
-        Ok(pool) => pool,
-        Err(e) => {
-            eprintln!("error: {e}");
-            return std::process::ExitCode::from(2);
-        }
-    };
-    match cli::run(args) {
+    // A pool that cannot start is reported as any other error; the pool lives for the run.
+    let result = stride_core::parallel::join_own_pool("stride-main")
+        .map_err(anyhow::Error::from)
+        .and_then(|_pool| cli::run(args));
+    match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             // A closed stdout (e.g. `stride ... | head`) is not an error worth reporting.
