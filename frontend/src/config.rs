@@ -198,6 +198,14 @@ pub struct VoConfig {
     ///
     /// [`VisualOdometry::add_gyroscope`]: crate::VisualOdometry::add_gyroscope
     pub readout_gyroscope: bool,
+    /// With a rolling shutter and an accelerometer of 200 Hz or more
+    /// ([`VisualOdometry::add_accelerometer`]), each colour row's translation from the
+    /// frame's time is integrated from it (the frame's velocity from the interval's
+    /// displacement and the acceleration within it) instead of the last frame interval's
+    /// mean velocity times the row's delay (see `crate::accel`).
+    ///
+    /// [`VisualOdometry::add_accelerometer`]: crate::VisualOdometry::add_accelerometer
+    pub readout_accelerometer: bool,
     /// With a gyroscope, the rotation predicted from one frame to the next (where
     /// Lucas-Kanade starts each track) is integrated from it instead of the last frame
     /// interval's (see `crate::gyro`).
@@ -583,6 +591,7 @@ impl Default for VoConfig {
             rolling_shutter_s: 0.0,
             exposure_s: 0.0,
             readout_gyroscope: true,
+            readout_accelerometer: true,
             predict_gyroscope: true,
             seed: 1,
         }

@@ -7,8 +7,8 @@
 //! of the rate itself, and the rolling shutter then doubles the walk's error (1.0 mm ATE
 //! against 0.45 mm with a global shutter). Every legged robot carries a gyroscope: given
 //! one ([`VisualOdometry::add_gyroscope`]), its rate is integrated over the readout into
-//! the rotation from the frame's time to each row's ([`RowRotations`]; the linear velocity
-//! stays the interval's: the true one instead moved the same walk's ATE by 0.03 mm). The
+//! the rotation from the frame's time to each row's ([`RowRotations`]; the translation is
+//! the interval's velocity's, or an accelerometer's integral: `crate::accel`). The
 //! integral, not one rate: a gait's foot impacts change the rate within the 20 ms readout
 //! (on that walk, the rotation of a constant mean rate is off each row's by 0.30 px rms,
 //! the integrated 400 Hz gyroscope's by 0.09 px), and the rate at the frame's time alone
@@ -23,6 +23,7 @@
 //! (`crate::keyframe`).
 
 use crate::points::{RowRotations, ShutterMotion, ROTATION_KNOTS};
+use crate::series::Series;
 use crate::vo::VisualOdometry;
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
@@ -68,7 +69,7 @@ pub struct GyroscopeFrames {
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Gyro {
     /// Time (s) and angular velocity in the camera frame (rad/s), in time order.
-    samples: Vec<(f64, Vector3<f64>)>,
+    samples: Series,
     /// Frames whose readout motion took the gyroscope's rate.
     pub(crate) used: usize,
     /// Frames with a rolling shutter that the samples did not cover.
@@ -82,26 +83,10 @@ pub(crate) struct Gyro {
 }
 
 impl Gyro {
-    /// The angular velocity at `t_s`, linear between the samples around it.
+    /// The angular velocity at `t_s`, linear between the samples around it; `None` across
+    /// a gap longer than [`MAX_GAP_S`].
     fn at(&self, t_s: f64) -> Option<Vector3<f64>> {
-        let k = self.samples.partition_point(|(t, _)| *t <= t_s);
-        let &(t0, w0) = self.samples.get(k.checked_sub(1)?)?;
-        if t0 == t_s {
-            return Some(w0);
-        }
-        let &(t1, w1) = self.samples.get(k)?;
-        if t1 - t0 > MAX_GAP_S || t1 <= t0 {
-            return None;
-        }
-        let a = (t_s - t0) / (t1 - t0);
-        Some(w0 * (1.0 - a) + w1 * a)
-    }
-
-    /// Drops the samples before `t_s`, keeping the last one before it (the left end of
-    /// an interpolation at `t_s`).
-    fn forget_before(&mut self, t_s: f64) {
-        let k = self.samples.partition_point(|(t, _)| *t < t_s);
-        self.samples.drain(..k.saturating_sub(1));
+        self.samples.at(t_s, MAX_GAP_S)
     }
 
     /// The mean angular velocity over `[t0, t1]` (the rate linear between samples), when
@@ -113,12 +98,9 @@ impl Gyro {
             return self.at(t0);
         }
         let mut knots = vec![(t0, self.at(t0)?)];
-        let first = self.samples.partition_point(|(t, _)| *t <= t0);
-        let inside = self
-            .samples
-            .get(first..)?
-            .iter()
-            .take_while(|(t, _)| *t < t1);
+        let samples = self.samples.samples();
+        let first = samples.partition_point(|(t, _)| *t <= t0);
+        let inside = samples.get(first..)?.iter().take_while(|(t, _)| *t < t1);
         knots.extend(inside.copied());
         knots.push((t1, self.at(t1)?));
         let integral = knots
@@ -219,12 +201,7 @@ impl VisualOdometry {
     /// `readout_gyroscope` is on and the camera has a rolling shutter, and for the rotation
     /// predicted from frame to frame while `predict_gyroscope` is on.
     pub fn add_gyroscope(&mut self, samples: &[(f64, Vector3<f64>)]) {
-        for &(t, w) in samples {
-            let newer = self.gyro.samples.last().is_none_or(|(last, _)| t > *last);
-            if newer && t.is_finite() && w.iter().all(|x| x.is_finite()) {
-                self.gyro.samples.push((t, w));
-            }
-        }
+        self.gyro.samples.extend(samples);
     }
 
     /// What the gyroscope's samples were used for, frame by frame.
@@ -295,21 +272,28 @@ impl VisualOdometry {
     }
 
     /// The camera's motion during the readout of the frame at `t_s` (the middle row's
-    /// time): `prev_from_cur` over `dt_s` (constant velocity), its rotation replaced by the
-    /// gyroscope's integrated over the readout (and averaged over the exposure) when the
-    /// samples cover it.
+    /// time): `interval`'s `prev_from_cur` over `dt_s` (constant velocity; none for a
+    /// first frame: no translation), its rotation replaced by the gyroscope's integrated
+    /// over the readout (and averaged over the exposure) and its translation by the
+    /// accelerometer's (`crate::accel`) when the samples cover them.
     /// `count` tallies the frame (once per frame).
     pub(crate) fn readout_motion(
         &mut self,
-        prev_from_cur: &Isometry3<f64>,
-        dt_s: f64,
+        interval: Option<(&Isometry3<f64>, f64)>,
         t_s: f64,
         count: bool,
     ) -> ShutterMotion {
         let readout = self.config.rolling_shutter_s;
+        let still = Isometry3::identity();
+        let (prev_from_cur, dt_s) = interval.unwrap_or((&still, 1.0));
         let mut motion = ShutterMotion::new(readout, self.camera.height(), prev_from_cur, dt_s);
-        let wanted = self.config.readout_gyroscope && !self.gyro.samples.is_empty();
-        if readout <= 0.0 || motion.row_s <= 0.0 || !wanted {
+        if readout <= 0.0 || motion.row_s <= 0.0 {
+            return motion;
+        }
+        if let Some((prev_from_cur, dt_s)) = interval {
+            self.readout_translation(&mut motion, prev_from_cur, dt_s, t_s, count);
+        }
+        if !self.config.readout_gyroscope || self.gyro.samples.is_empty() {
             return motion;
         }
         let (t0, t1) = (t_s - readout / 2.0, t_s + readout / 2.0);
@@ -323,7 +307,7 @@ impl VisualOdometry {
         if count {
             // Frames come in time order: samples well before this one are not needed again
             // (a long run's samples would otherwise grow without bound).
-            self.gyro.forget_before(t_s - KEEP_S);
+            self.gyro.samples.forget_before(t_s - KEEP_S);
         }
         motion
     }
@@ -336,11 +320,11 @@ mod tests {
     #[test]
     fn interpolates_between_samples_and_refuses_gaps() {
         let g = Gyro {
-            samples: vec![
+            samples: Series::from(vec![
                 (0.0, Vector3::new(0.0, 0.0, 0.0)),
                 (0.01, Vector3::new(1.0, -2.0, 0.5)),
                 (0.2, Vector3::new(0.0, 0.0, 0.0)),
-            ],
+            ]),
             ..Gyro::default()
         };
         let w = g.at(0.0025).unwrap();
@@ -352,8 +336,12 @@ mod tests {
         assert!((m - Vector3::new(0.5, -1.0, 0.25)).norm() < 1e-12);
         assert!(g.mean(0.005, 0.1).is_none(), "its end is in the gap");
         let mut g = g;
-        g.forget_before(0.1);
-        assert_eq!(g.samples.len(), 2, "the sample before 0.1 s stays");
+        g.samples.forget_before(0.1);
+        assert_eq!(
+            g.samples.samples().len(),
+            2,
+            "the sample before 0.1 s stays"
+        );
         assert!(g.at(0.1).is_none() && g.at(0.2).is_some());
     }
 
@@ -364,14 +352,14 @@ mod tests {
         // the interval before (1 rad/s) would be off by about a third of it.
         let axis = Vector3::new(0.6, -0.8, 0.0);
         let rate = |t: f64| 1.0 + 3.0 * t / 0.033;
-        let samples = (0..=16)
+        let samples: Vec<_> = (0..=16)
             .map(|k| {
                 let t = k as f64 * 0.0025;
                 (t, axis * rate(t))
             })
             .collect();
         let g = Gyro {
-            samples,
+            samples: Series::from(samples),
             ..Gyro::default()
         };
         let (t0, t1) = (0.002, 0.035);
@@ -391,14 +379,14 @@ mod tests {
         // A rate about y rising from 2 to 2.2 rad/s over a 20 ms readout, sampled at 1 kHz:
         // the rotation from the middle instant (10 ms) to 10 + s ms is the integral of the
         // rate, 2.1 s + 5 s^2 rad, which a constant mean rate (2.1 s) misses at the ends.
-        let samples = (0..=20)
+        let samples: Vec<_> = (0..=20)
             .map(|k| {
                 let t = k as f64 * 1e-3;
                 (t, Vector3::new(0.0, 2.0 + 10.0 * t, 0.0))
             })
             .collect();
         let g = Gyro {
-            samples,
+            samples: Series::from(samples),
             ..Gyro::default()
         };
         let r = g.rotations(0.0, 0.02, 0.0).unwrap();
@@ -426,14 +414,14 @@ mod tests {
         // readout and a 10 ms exposure: the angle from the middle instant is
         // 3.5 s + 50 s^2, and its mean over an exposure centred on s is
         // 3.5 s + 50 (s^2 + e^2 / 12); the exposure adds 4.2e-4 rad (0.2 px at 517 px).
-        let samples = (0..=30)
+        let samples: Vec<_> = (0..=30)
             .map(|k| {
                 let t = k as f64 * 1e-3;
                 (t - 0.005, Vector3::new(0.0, 2.0 + 100.0 * t, 0.0))
             })
             .collect();
         let g = Gyro {
-            samples,
+            samples: Series::from(samples),
             ..Gyro::default()
         };
         let e = 0.01;

@@ -14,6 +14,7 @@
 //! Deterministic: RANSAC is seeded, OpenCV's tracking and detection do not depend on thread
 //! scheduling, and nothing else is random.
 
+mod accel;
 pub mod config;
 pub mod depth_align;
 mod depth_link;
@@ -32,8 +33,10 @@ pub mod points;
 pub mod recovery;
 pub mod relocalize;
 pub mod result;
+mod series;
 pub mod vo;
 
+pub use accel::AccelerometerFrames;
 pub use config::{InlierTest, VoConfig};
 pub use error::FrontendError;
 pub use gyro::GyroscopeFrames;

@@ -32,6 +32,10 @@ pub struct ShutterMotion {
     /// replaces the constant `omega_rad_s` (a gait's foot impacts change the rate within
     /// the readout).
     pub rotations: Option<RowRotations>,
+    /// The translation over the readout integrated from an accelerometer, when one covers
+    /// it and the frame interval: it replaces `v_m_s s` (a foot's impact changes the
+    /// velocity within the readout, and the interval's mean velocity is not the frame's).
+    pub translations: Option<RowTranslations>,
 }
 
 impl ShutterMotion {
@@ -55,21 +59,26 @@ impl ShutterMotion {
             omega_rad_s: prev_from_cur.rotation.scaled_axis() / dt_s,
             v_m_s: prev_from_cur.translation.vector / dt_s,
             rotations: None,
+            translations: None,
         }
     }
 
     /// `p_camera` (m), measured in image row `v_px`, expressed in the camera frame at the
     /// frame's time: `cam(t) <- cam(t + s)` with `s` the row's delay, which is the rotation
     /// by `omega s` (or the gyroscope's integrated rotation) followed by the translation
-    /// `v s`.
+    /// `v s` (or the accelerometer's integrated translation).
     pub fn to_frame_time(&self, p_camera: Point3<f64>, v_px: f64) -> Point3<f64> {
         let s = (v_px - self.mid_row) * self.row_s;
-        let frame_from_row = match &self.rotations {
-            Some(r) => r.at(s),
-            None if s == 0.0 => return p_camera,
-            None => UnitQuaternion::from_scaled_axis(self.omega_rad_s * s),
+        let frame_from_row = match (&self.rotations, &self.translations) {
+            (Some(r), _) => r.at(s),
+            (None, None) if s == 0.0 => return p_camera,
+            (None, _) => UnitQuaternion::from_scaled_axis(self.omega_rad_s * s),
         };
-        frame_from_row * p_camera + self.v_m_s * s
+        let translation = match &self.translations {
+            Some(t) => t.at(s),
+            None => self.v_m_s * s,
+        };
+        frame_from_row * p_camera + translation
     }
 }
 
@@ -95,16 +104,49 @@ impl RowRotations {
     /// `cam(t) <- cam(t + s_s)`, interpolated between the knots around `s_s` (clamped to
     /// the readout).
     pub fn at(&self, s_s: f64) -> UnitQuaternion<f64> {
-        let last = ROTATION_KNOTS - 1;
-        let x = ((s_s - self.first_s) / self.step_s).clamp(0.0, last as f64);
-        let i = (x.floor() as usize).min(last - 1);
+        let (i, frac) = knot_interval(self.first_s, self.step_s, s_s);
         let (a, b) = match (self.frame_from_knot.get(i), self.frame_from_knot.get(i + 1)) {
             (Some(a), Some(b)) => (a, b),
-            _ => return UnitQuaternion::identity(), // i < last by the clamp above
+            _ => return UnitQuaternion::identity(), // i < last by knot_interval
         };
         // Along the geodesic from a to b (no slerp: it panics on opposite rotations, which
         // a corrupt rate could integrate to).
-        a * UnitQuaternion::from_scaled_axis((a.inverse() * b).scaled_axis() * (x - i as f64))
+        a * UnitQuaternion::from_scaled_axis((a.inverse() * b).scaled_axis() * frac)
+    }
+}
+
+/// The knot interval `[i, i + 1]` of [`ROTATION_KNOTS`] knots from `first_s`, `step_s`
+/// apart (s), that holds `s_s` (clamped to the knots), and where in it `s_s` lies (0-1).
+fn knot_interval(first_s: f64, step_s: f64, s_s: f64) -> (usize, f64) {
+    let last = ROTATION_KNOTS - 1;
+    let x = ((s_s - first_s) / step_s).clamp(0.0, last as f64);
+    let i = (x.floor() as usize).min(last - 1);
+    (i, x - i as f64)
+}
+
+/// The camera's position at evenly spaced instants over the readout, in its frame at the
+/// frame's time `t` (m): where `cam(t + s_i)`'s origin is in `cam(t)`, `s_i = first_s + i
+/// step_s` (s) on the knots of [`RowRotations`]; linear between knots. With a known
+/// exposure each knot holds the mean position over the exposure centred on its instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowTranslations {
+    /// Delay of the first knot (s; negative: the top row is read before the frame's time).
+    pub first_s: f64,
+    /// Time between knots (s).
+    pub step_s: f64,
+    /// `cam(t + s_i)`'s origin in `cam(t)` (m), for each knot.
+    pub p_frame_knot: [Vector3<f64>; ROTATION_KNOTS],
+}
+
+impl RowTranslations {
+    /// `cam(t + s_s)`'s origin in `cam(t)` (m), linear between the knots around `s_s`
+    /// (clamped to the readout).
+    pub fn at(&self, s_s: f64) -> Vector3<f64> {
+        let (i, frac) = knot_interval(self.first_s, self.step_s, s_s);
+        match (self.p_frame_knot.get(i), self.p_frame_knot.get(i + 1)) {
+            (Some(a), Some(b)) => a + (b - a) * frac,
+            _ => Vector3::zeros(), // i < last by knot_interval
+        }
     }
 }
 

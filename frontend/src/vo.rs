@@ -84,6 +84,8 @@ pub struct VisualOdometry {
     /// gyroscope's samples for it.
     pub(crate) shutter: ShutterMotion,
     pub(crate) gyro: crate::gyro::Gyro,
+    /// The accelerometer's samples and what they were used for (`crate::accel`).
+    pub(crate) accel: crate::accel::Accel,
     /// The keyframes relocalization searches: a saved map's (the first frame is localized
     /// in them) and this run's.
     pub(crate) places: PlaceMemory,
@@ -113,6 +115,7 @@ impl VisualOdometry {
             recent: RecentKeyframes::new()?,
             shutter: ShutterMotion::default(),
             gyro: crate::gyro::Gyro::default(),
+            accel: crate::accel::Accel::default(),
             places: PlaceMemory::new()?,
         })
     }
@@ -198,7 +201,7 @@ impl VisualOdometry {
         self.motion_model.start(frame.t_s, world_from_cur);
         // No earlier frame gives a velocity, but a gyroscope gives the rotation during the
         // readout: the first keyframe's points, which anchor the map, get it too.
-        self.shutter = self.readout_motion(&Isometry3::identity(), 1.0, frame.t_s, true);
+        self.shutter = self.readout_motion(None, frame.t_s, true);
         timing.track_s = start.elapsed().as_secs_f64();
         let t = Instant::now();
         let tracked = self.tracks.len();
@@ -252,8 +255,8 @@ impl VisualOdometry {
         // 1. Predict and track.
         let (prev_from_pred, gyro) = self.predicted_with_gyroscope(frame.t_s);
         let gyro_rotation = gyro.then_some(prev_from_pred.rotation);
-        self.shutter =
-            self.readout_motion(&prev_from_pred, frame.t_s - self.prev_t, frame.t_s, true);
+        let interval = (&prev_from_pred, frame.t_s - self.prev_t);
+        self.shutter = self.readout_motion(Some(interval), frame.t_s, true);
         let world_from_pred = self.world_from_prev * prev_from_pred;
         let pred_from_world = world_from_pred.inverse();
         let from: Vec<Point2f> = self.tracks.iter().map(|t| t.px).collect();
@@ -402,7 +405,7 @@ impl VisualOdometry {
             if estimated {
                 let prev_from_cur = self.world_from_prev.inverse() * world_from_cur;
                 let dt = frame.t_s - self.prev_t;
-                self.shutter = self.readout_motion(&prev_from_cur, dt, frame.t_s, false);
+                self.shutter = self.readout_motion(Some((&prev_from_cur, dt)), frame.t_s, false);
             }
             // A relocalized keyframe is linked to the keyframe it was found against, as
             // measured: linked to the previous one, the link would state the odometry's
@@ -571,7 +574,7 @@ impl VisualOdometry {
             return first;
         };
         let prev_from_cur = self.world_from_prev.inverse() * e.ref_from_cur;
-        let shutter = self.readout_motion(&prev_from_cur, dt, frame.t_s, false);
+        let shutter = self.readout_motion(Some((&prev_from_cur, dt)), frame.t_s, false);
         let tracks = first.alive.iter().map(|(t, _)| t.clone()).collect();
         let again = self.measure_tracks(frame, tracks, &shutter);
         let flags = again

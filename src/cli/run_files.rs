@@ -450,6 +450,11 @@ fn report_json(
                "keyframes_deferred": g.keyframes_deferred,
                "estimates_rejected": g.estimates_rejected}),
     );
+    let acc = out.accelerometer_frames;
+    m.insert(
+        "accelerometer_frames".into(),
+        json!({"used": acc.readout, "not_covered": acc.readout_not_covered}),
+    );
     m.insert("recoveries_refused".into(), json!(out.recoveries_refused));
     m.insert("camera".into(), json!(seq.camera_source()));
     if let Some(at) = at {

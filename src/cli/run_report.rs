@@ -202,6 +202,13 @@ pub fn write_html(dir: &Path, page: &RunPage<'_>) -> Result<()> {
                 ),
             ],
             vec![
+                "rolling shutter's translation from the accelerometer / not covered by it".into(),
+                format!(
+                    "{} / {}",
+                    j["accelerometer_frames"]["used"], j["accelerometer_frames"]["not_covered"]
+                ),
+            ],
+            vec![
                 "rotation predicted by the gyroscope / not covered by it".into(),
                 format!(
                     "{} / {}",

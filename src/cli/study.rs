@@ -73,7 +73,8 @@ pub struct BlurStudyArgs {
     /// The blur mitigations: frames whose colour image the features cannot place are
     /// placed by their depth (odometry key `depth_alignment`), each colour row's rotation
     /// comes from the gyroscope, over the readout and the exposure (`readout_gyroscope`),
-    /// and so does the rotation predicted from frame to frame (`predict_gyroscope`), and a
+    /// and its translation from the accelerometer (`readout_accelerometer`), the rotation
+    /// predicted from frame to frame comes from the gyroscope (`predict_gyroscope`), and a
     /// keyframe waits out a jolt the gyroscope shows (`keyframe_jolt_ratio`). `on` runs
     /// them as configured (each can be switched off in `--config`), `off` turns them all
     /// off, `both` runs every sequence off and on and tables them side by side.

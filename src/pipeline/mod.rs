@@ -161,6 +161,17 @@ impl Pipeline {
         self.slam.add_gyroscope(samples);
     }
 
+    /// Adds accelerometer samples: time (s, the frames' clock) and the specific force in
+    /// the camera frame (m/s²), in time order, all at once or as they arrive. With a
+    /// rolling shutter and samples of 200 Hz or more, each frame's correction then takes
+    /// each row's translation, integrated from them (odometry key
+    /// `readout_accelerometer`); report.json counts the frames that did and those the
+    /// samples did not cover. The world frame's use of an accelerometer is separate
+    /// ([`WorldPlan::Accelerometer`]).
+    pub fn add_accelerometer(&mut self, samples: &[stride_datasets::accelerometer::AccelSample]) {
+        self.slam.add_accelerometer(samples);
+    }
+
     /// Processes the next frame; `decode_s` is the time its decoding took elsewhere (s),
     /// for the report. Returns its record: pose (live), status, keyframe, timings.
     pub fn process(

@@ -154,6 +154,11 @@ pub struct RunOutput {
     ///
     /// [`Pipeline::add_gyroscope`]: crate::Pipeline::add_gyroscope
     pub gyroscope_frames: stride_frontend::GyroscopeFrames,
+    /// What an accelerometer given ([`Pipeline::add_accelerometer`]) was used for: frames
+    /// whose rolling-shutter correction took its translation, and frames it did not cover.
+    ///
+    /// [`Pipeline::add_accelerometer`]: crate::Pipeline::add_accelerometer
+    pub accelerometer_frames: stride_frontend::AccelerometerFrames,
     /// Poses recovery found and refused as a step no camera makes from the tracked frame
     /// before ([`stride_frontend::VisualOdometry::recoveries_refused`]).
     pub recoveries_refused: usize,

@@ -20,6 +20,9 @@ pub fn run_sequence(
     if let Some(samples) = seq.gyroscope() {
         pipeline.add_gyroscope(samples);
     }
+    if let Some(samples) = seq.accelerometer() {
+        pipeline.add_accelerometer(samples);
+    }
     for item in seq.stream(max_frames, DECODE_AHEAD) {
         let record = match item {
             Ok(d) => pipeline.process(&d.frame, d.decode_s)?,

@@ -138,6 +138,12 @@ impl Slam {
         self.vo.add_gyroscope(samples);
     }
 
+    /// Adds accelerometer samples for the rolling-shutter correction
+    /// ([`stride_frontend::VisualOdometry::add_accelerometer`]).
+    pub fn add_accelerometer(&mut self, samples: &[stride_datasets::accelerometer::AccelSample]) {
+        self.vo.add_accelerometer(samples);
+    }
+
     /// Looks for the floor in the depth of the first frames and of keyframes, unless the
     /// world frame is given.
     fn look_for_floor(&mut self, frame: &RgbdFrame, keyframe: bool) {
@@ -380,6 +386,7 @@ impl Slam {
             backend,
             world: WorldFrame::first_camera(),
             gyroscope_frames: self.vo.gyroscope_frames(),
+            accelerometer_frames: self.vo.accelerometer_frames(),
             recoveries_refused: self.vo.recoveries_refused(),
         };
         let world = self.world.or_else(|| {

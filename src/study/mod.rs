@@ -151,14 +151,16 @@ pub fn gait_name(g: Gait) -> &'static str {
 /// `config` with the blur mitigations as configured (`on`) or all off: frames the
 /// features lose placed by their depth (odometry key `depth_alignment`), each colour row's
 /// rotation integrated from the gyroscope over the readout and averaged over the exposure
-/// (`readout_gyroscope`), the rotation from frame to frame predicted by the gyroscope
+/// (`readout_gyroscope`), its translation integrated from the accelerometer
+/// (`readout_accelerometer`), the rotation from frame to frame predicted by the gyroscope
 /// (`predict_gyroscope`), and keyframes that wait out a jolt the gyroscope shows
-/// (`keyframe_jolt_ratio`; the real side has no gyroscope).
+/// (`keyframe_jolt_ratio`; the real side has neither inertial sensor).
 pub fn with_mitigation(config: &PipelineConfig, on: bool) -> PipelineConfig {
     let mut c = config.clone();
     if !on {
         c.odometry.depth_alignment = false;
         c.odometry.readout_gyroscope = false;
+        c.odometry.readout_accelerometer = false;
         c.odometry.predict_gyroscope = false;
         c.odometry.keyframe_jolt_ratio = 0.0;
     }
@@ -201,6 +203,7 @@ pub fn run(
     let mitigation = config.odometry != with_mitigation(&config, false).odometry;
     let mut pipeline = Pipeline::new(&synth.camera_config(), config)?;
     pipeline.add_gyroscope(&synth.gyroscope());
+    pipeline.add_accelerometer(&synth.accelerometer());
     let renderer = synth.renderer();
     let (mut gt, mut per_frame) = (Trajectory::new(), Vec::with_capacity(spec.frames));
     let (mut t0, mut depth_aligned) = (None, 0usize);

@@ -43,9 +43,13 @@ use motion::{Motion, TrunkState};
 
 /// Standard gravity (m/s²).
 pub const GRAVITY_M_S2: f64 = 9.80665;
-/// Accelerometer samples per second written by the lab.
-pub const ACCELEROMETER_HZ: f64 = 100.0;
-/// Standard deviation of the accelerometer's noise (m/s², per axis and sample).
+/// Accelerometer samples per second written by the lab: 400 Hz, as its gyroscope (the
+/// rolling-shutter correction integrates them over a 20 ms readout; a foot's impact
+/// changes the acceleration within a few milliseconds).
+pub const ACCELEROMETER_HZ: f64 = 400.0;
+/// Standard deviation of the accelerometer's noise (m/s², per axis and sample): twice a
+/// MEMS accelerometer's 175 ug/sqrt(Hz) (a BMI088's datasheet figure, 0.024 m/s² over the
+/// 200 Hz of bandwidth of 400 Hz samples).
 pub const ACCELEROMETER_NOISE_M_S2: f64 = 0.05;
 /// Gyroscope samples per second written by the lab: 400 Hz, a common output rate of the
 /// IMUs on legged robots and RGB-D cameras (a RealSense D435i offers 200 or 400 Hz).
@@ -222,11 +226,12 @@ impl Synth {
 
     /// What an accelerometer on the camera reads `t` seconds after the first frame: the
     /// specific force (the camera's acceleration minus gravity, m/s²) in the camera frame
-    /// (x right, y down, z forward), from central differences of the motion over 5 ms.
+    /// (x right, y down, z forward), from the second difference of the motion over one
+    /// sample period either side: the acceleration averaged with triangular weights over
+    /// those two periods, as a MEMS accelerometer low-passes before it delivers samples.
     pub fn specific_force(&self, t: f64) -> nalgebra::Vector3<f64> {
-        const H_S: f64 = 0.005;
+        const H_S: f64 = 1.0 / ACCELEROMETER_HZ;
         let at = |t: f64| self.state(t).world_from_camera;
-        let t = t.max(H_S);
         let (a, b, c) = (at(t - H_S), at(t), at(t + H_S));
         let acceleration = (a.translation.vector - 2.0 * b.translation.vector
             + c.translation.vector)
@@ -251,47 +256,49 @@ impl Synth {
 
     /// The accelerometer's samples over the sequence: [`Self::specific_force`] at
     /// [`ACCELEROMETER_HZ`] with seeded Gaussian noise ([`ACCELEROMETER_NOISE_M_S2`]), on
-    /// the frames' clock (s).
+    /// the frames' clock (s), from 50 ms before the first frame to 50 ms past the last.
     pub fn accelerometer(&self) -> Vec<crate::accelerometer::AccelSample> {
-        let n = (self.duration_s() * ACCELEROMETER_HZ).floor() as usize + 1;
-        self.noisy_samples(
-            n,
+        self.inertial(
             ACCELEROMETER_HZ,
             ACCELEROMETER_NOISE_M_S2,
-            0xACCE_1E20,
+            [0xACCE_1E21, 0xACCE_1E20],
             |t| self.specific_force(t),
         )
     }
 
     /// The gyroscope's samples over the sequence: [`Self::angular_velocity`] at
     /// [`GYROSCOPE_HZ`] with seeded Gaussian noise ([`GYROSCOPE_NOISE_RAD_S`]), on the
-    /// frames' clock (s).
+    /// frames' clock (s), from 50 ms before the first frame to 50 ms past the last.
     pub fn gyroscope(&self) -> Vec<crate::accelerometer::GyroSample> {
-        // Samples 50 ms past the last frame, so that its readout lies between samples, and
-        // 50 ms before the first, as a robot's gyroscope runs before its camera starts (the
-        // first frame's readout, centred on its time, starts 10 ms before it). The samples
-        // before the first frame draw their noise from a generator of their own, so those
-        // from the first frame on are the same as without them.
-        let n = ((self.duration_s() + 0.05) * GYROSCOPE_HZ).ceil() as usize + 1;
-        let lead = (0.05 * GYROSCOPE_HZ).ceil() as usize;
-        let shift_s = lead as f64 / GYROSCOPE_HZ;
-        let mut samples = self.noisy_samples(
-            lead,
+        self.inertial(
             GYROSCOPE_HZ,
             GYROSCOPE_NOISE_RAD_S,
-            0x6E20_5C0F,
-            |t| self.angular_velocity(t - shift_s),
-        );
+            [0x6E20_5C0F, 0x6E20_5C0E],
+            |t| self.angular_velocity(t),
+        )
+    }
+
+    /// Samples of `read` (seconds after the first frame) at `hz` with Gaussian noise of
+    /// `sigma`, 50 ms past the last frame, so that its readout lies between samples, and
+    /// 50 ms before the first, as a robot's inertial sensor runs before its camera starts
+    /// (the first frame's readout, centred on its time, starts 10 ms before it). The
+    /// samples before the first frame draw their noise from a generator of their own
+    /// (`salts[0]`), so those from the first frame on are the same as without them.
+    fn inertial(
+        &self,
+        hz: f64,
+        sigma: f64,
+        salts: [u64; 2],
+        read: impl Fn(f64) -> nalgebra::Vector3<f64>,
+    ) -> Vec<(f64, nalgebra::Vector3<f64>)> {
+        let n = ((self.duration_s() + 0.05) * hz).ceil() as usize + 1;
+        let lead = (0.05 * hz).ceil() as usize;
+        let shift_s = lead as f64 / hz;
+        let mut samples = self.noisy_samples(lead, hz, sigma, salts[0], |t| read(t - shift_s));
         for s in &mut samples {
             s.0 -= shift_s;
         }
-        samples.extend(self.noisy_samples(
-            n,
-            GYROSCOPE_HZ,
-            GYROSCOPE_NOISE_RAD_S,
-            0x6E20_5C0E,
-            |t| self.angular_velocity(t),
-        ));
+        samples.extend(self.noisy_samples(n, hz, sigma, salts[1], read));
         samples
     }
 
