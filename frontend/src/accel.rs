@@ -22,8 +22,10 @@
 //! `up` is the mean of every specific force seen so far, each rotated into the odometry's
 //! world by its frame's pose: over a walk the robot's own accelerations average out. An
 //! error of 1 m/s² in it moves a row 10 ms from the middle by 0.05 mm and the frame's
-//! velocity by 8 mm/s at 30 Hz; the rotation within the interval is the interval's
-//! constant rate (the gyroscope's integral would change `a` by well under 1 %).
+//! velocity by 8 mm/s at 30 Hz. Each sample is turned into the frame's camera by the
+//! gyroscope's rotation integrated back from the frame when it covers the interval (at
+//! 10 Hz the camera turns by up to 0.1 rad within one, tilting `f` by up to 1 m/s²), else
+//! by the interval's constant rate.
 
 use crate::points::{RowTranslations, ShutterMotion, ROTATION_KNOTS};
 use crate::series::Series;
@@ -44,6 +46,12 @@ const SUBSTEPS: usize = 4;
 
 /// Longest integration step over the frame interval (s).
 const INTERVAL_STEP_S: f64 = 0.00125;
+
+/// The integration steps over a frame interval of `dt_s` (s): how many, and how long (s).
+fn interval_steps(dt_s: f64) -> (usize, f64) {
+    let n = (dt_s / INTERVAL_STEP_S).ceil().max(1.0) as usize;
+    (n, dt_s / n as f64)
+}
 
 /// How many frames took an accelerometer's samples for their readout
 /// ([`VisualOdometry::add_accelerometer`]), and how many the samples did not cover (those
@@ -108,35 +116,43 @@ impl Accel {
     /// The camera's position over the readout of the frame at `t_s` (see the module's
     /// doc), in its frame at `t_s`: `up_cam` the reaction to gravity (m/s²), `d_cam` the
     /// displacement over the last `dt_s` seconds and `omega_rad_s` the angular velocity,
-    /// all in that frame; `None` unless the samples cover the interval, the readout and
-    /// half an exposure either side.
+    /// all in that frame; `interval_rotations`, when a gyroscope gives them, the rotations
+    /// `cam(t_s) <- cam(t_s - (k + 0.5) h)` over the [`interval_steps`] of `dt_s` (else the
+    /// constant rate `omega_rad_s`). `None` unless the samples cover the interval, the
+    /// readout and half an exposure either side.
     #[allow(clippy::too_many_arguments)] // each is one physical quantity of the frame
     fn translations(
         &self,
         up_cam: &Vector3<f64>,
         d_cam: &Vector3<f64>,
         omega_rad_s: &Vector3<f64>,
+        interval_rotations: Option<&[UnitQuaternion<f64>]>,
         dt_s: f64,
         t_s: f64,
-        readout_s: f64,
-        exposure_s: f64,
+        (readout_s, exposure_s): (f64, f64),
     ) -> Option<RowTranslations> {
         let step_s = readout_s / (ROTATION_KNOTS - 1) as f64;
         if !(step_s > 0.0 && exposure_s >= 0.0 && dt_s > 0.0 && dt_s <= MAX_INTERVAL_S) {
             return None;
         }
-        // The camera's acceleration at t_s + sigma in its frame at t_s (m/s²).
-        let accel = |sigma: f64| -> Option<Vector3<f64>> {
+        // The camera's acceleration at t_s + sigma in its frame at t_s (m/s²), the camera
+        // at t_s + sigma turned by `frame_from` from the frame's.
+        let accel_turned = |sigma: f64, frame_from: UnitQuaternion<f64>| {
             let f = self.samples.at(t_s + sigma, MAX_ACCEL_GAP_S)?;
-            Some(UnitQuaternion::from_scaled_axis(omega_rad_s * sigma) * f - up_cam)
+            Some(frame_from * f - up_cam)
         };
+        let accel =
+            |sigma: f64| accel_turned(sigma, UnitQuaternion::from_scaled_axis(omega_rad_s * sigma));
         // The frame's velocity, midpoint rule over the interval (u: time since its start).
-        let n = (dt_s / INTERVAL_STEP_S).ceil().max(1.0) as usize;
-        let h = dt_s / n as f64;
+        let (n, h) = interval_steps(dt_s);
         let mut weighted = Vector3::zeros();
         for k in 0..n {
             let u = (k as f64 + 0.5) * h;
-            weighted += accel(u - dt_s)? * (u * h);
+            let a = match interval_rotations {
+                Some(r) => accel_turned(u - dt_s, *r.get(n - 1 - k)?)?,
+                None => accel(u - dt_s)?,
+            };
+            weighted += a * (u * h);
         }
         let v_frame = (d_cam + weighted) / dt_s;
         // Positions at the knots, padded by half an exposure, integrated outwards from the
@@ -226,15 +242,21 @@ impl VisualOdometry {
             self.accel.mean_between(t_s - dt_s, t_s)
         };
         let d_cam = prev_from_cur.rotation.inverse() * prev_from_cur.translation.vector;
+        // Over a long interval (10 Hz frames) the camera's turn within it matters to the
+        // acceleration's direction: the gyroscope's, when it covers the interval.
+        let (n, h) = interval_steps(dt_s);
+        let turned = (self.config.readout_gyroscope && dt_s <= MAX_INTERVAL_S)
+            .then(|| self.gyro.rotations_before(t_s, h, n))
+            .flatten();
         let rows = up_cam.and_then(|up| {
             self.accel.translations(
                 &up,
                 &d_cam,
                 &motion.omega_rad_s,
+                turned.as_deref(),
                 dt_s,
                 t_s,
-                self.config.rolling_shutter_s,
-                self.config.exposure_s,
+                (self.config.rolling_shutter_s, self.config.exposure_s),
             )
         });
         if rows.is_some() {
@@ -280,7 +302,7 @@ mod tests {
         let dt = 0.033;
         let d = Vector3::x() * (0.1 * dt + dt * dt * dt);
         let r = acc
-            .translations(&up, &d, &Vector3::zeros(), dt, 0.0, 0.02, 0.0)
+            .translations(&up, &d, &Vector3::zeros(), None, dt, 0.0, (0.02, 0.0))
             .unwrap();
         for s in [-0.01, -0.004, 0.0, 0.0035, 0.01] {
             let truth = 0.1 * s + s * s * s;
@@ -300,10 +322,10 @@ mod tests {
                 &(up + Vector3::x()),
                 &d,
                 &Vector3::zeros(),
+                None,
                 dt,
                 0.0,
-                0.02,
-                0.0,
+                (0.02, 0.0),
             )
             .unwrap();
         let expected = 0.5 * 1e-4 + 0.5 * dt * 0.01;
@@ -320,15 +342,23 @@ mod tests {
         let (e, dt) = (0.01, 0.033);
         let d = -Vector3::x() * dt * dt;
         let r = acc
-            .translations(&up, &d, &Vector3::zeros(), dt, 0.0, 0.02, e)
+            .translations(&up, &d, &Vector3::zeros(), None, dt, 0.0, (0.02, e))
             .unwrap();
         let got = r.at(0.01).x;
         let truth = 0.01f64.powi(2) + e * e / 12.0;
         // The trapezoid over 9 knots 1.25 ms apart is the continuous mean within 1e-6 m.
         assert!((got - truth).abs() < 1e-6, "{got} against {truth}");
         let none = |dt: f64, t: f64| {
-            acc.translations(&up, &Vector3::zeros(), &Vector3::zeros(), dt, t, 0.02, 0.0)
-                .is_none()
+            acc.translations(
+                &up,
+                &Vector3::zeros(),
+                &Vector3::zeros(),
+                None,
+                dt,
+                t,
+                (0.02, 0.0),
+            )
+            .is_none()
         };
         assert!(none(0.3, 0.0), "an interval longer than 0.2 s");
         assert!(none(0.033, 0.095), "the readout ends past the samples");
@@ -349,10 +379,10 @@ mod tests {
             &up,
             &Vector3::zeros(),
             &Vector3::zeros(),
+            None,
             0.033,
             0.0,
-            0.02,
-            0.0,
+            (0.02, 0.0),
         );
         assert!(sparse_r.is_none());
     }

@@ -127,6 +127,29 @@ impl Gyro {
         Some(q)
     }
 
+    /// `cam(t_s) <- cam(t_s - (k + 0.5) h_s)` for `k` in `0..n`: the rotation back from
+    /// `t_s` to the middle of each of `n` steps of `h_s` before it, integrated from the
+    /// rate (midpoint rule on half steps); `None` unless the samples cover them.
+    pub(crate) fn rotations_before(
+        &self,
+        t_s: f64,
+        h_s: f64,
+        n: usize,
+    ) -> Option<Vec<UnitQuaternion<f64>>> {
+        let half = 0.5 * h_s;
+        let mut q = UnitQuaternion::identity();
+        let mut out = Vec::with_capacity(n);
+        for j in 0..2 * n {
+            // cam(t) <- cam(t - half) is the inverse of the rotation over the half step.
+            let t = t_s - j as f64 * half;
+            q *= UnitQuaternion::from_scaled_axis(-self.at(t - 0.5 * half)? * half);
+            if j % 2 == 0 {
+                out.push(q);
+            }
+        }
+        Some(out)
+    }
+
     /// Composes onto `q` the rotation over `n` steps of `h_s` from `t0_s`, each step's
     /// rotation the rate at its middle (midpoint rule); `None` where the samples do not
     /// give a rate.
@@ -372,6 +395,39 @@ mod tests {
         );
         assert!(g.rotation_between(t0, 0.05).is_none(), "past the samples");
         assert!(g.rotation_between(t1, t0).is_none(), "backwards");
+    }
+
+    #[test]
+    fn integrates_the_rotation_back_from_a_frame() {
+        // A rate about z rising linearly, 2 + 30 t rad/s, sampled at 400 Hz over 0-0.1 s:
+        // from the frame at 0.1 s back to 0.1 - s the camera turned by the rate's integral,
+        // so cam(0.1) <- cam(0.1 - s) is the rotation by minus that angle.
+        let samples: Vec<_> = (0..=40)
+            .map(|k| {
+                let t = k as f64 * 0.0025;
+                (t, Vector3::new(0.0, 0.0, 2.0 + 30.0 * t))
+            })
+            .collect();
+        let g = Gyro {
+            samples: Series::from(samples),
+            ..Gyro::default()
+        };
+        let (h, n) = (0.00125, 80);
+        let r = g.rotations_before(0.1, h, n).unwrap();
+        assert_eq!(r.len(), n);
+        for k in [0, 7, 40, 79] {
+            let s = (k as f64 + 0.5) * h;
+            let angle = (2.0 + 30.0 * 0.1) * s - 15.0 * s * s;
+            let got = r[k].scaled_axis();
+            assert!(
+                (got + Vector3::z() * angle).norm() < 1e-9,
+                "k {k}: {got}, {angle}"
+            );
+        }
+        assert!(
+            g.rotations_before(0.1, h, 81).is_none(),
+            "before the first sample"
+        );
     }
 
     #[test]
