@@ -89,10 +89,7 @@ impl Accel {
     /// at `until_s`; the walk turns the camera by a few degrees within an interval).
     fn sum_up_to(&mut self, world_from_camera: &UnitQuaternion<f64>, until_s: f64) {
         let after = self.summed_until_s;
-        for (t, f) in self.samples.samples() {
-            if after.is_some_and(|a| *t <= a) || *t > until_s {
-                continue;
-            }
+        for (_, f) in self.samples.between(after, until_s) {
             self.up_sum_world += world_from_camera * f;
             self.up_count += 1;
         }
@@ -104,11 +101,7 @@ impl Accel {
     /// The mean specific force over `[t0_s, t1_s]` in the camera frame (m/s²), from the
     /// samples in it; `None` without one.
     fn mean_between(&self, t0_s: f64, t1_s: f64) -> Option<Vector3<f64>> {
-        let inside = self
-            .samples
-            .samples()
-            .iter()
-            .filter(|(t, _)| *t >= t0_s && *t <= t1_s);
+        let inside = self.samples.between(None, t1_s).iter().filter(|(t, _)| *t >= t0_s);
         let (sum, n) = inside.fold((Vector3::zeros(), 0usize), |(s, n), (_, f)| (s + f, n + 1));
         (n > 0).then(|| sum / n as f64)
     }

@@ -39,6 +39,13 @@ impl Series {
         &self.samples
     }
 
+    /// The samples at times in `(after_s, until_s]` (`after_s` `None`: from the first).
+    pub(crate) fn between(&self, after_s: Option<f64>, until_s: f64) -> &[(f64, Vector3<f64>)] {
+        let start = after_s.map_or(0, |a| self.samples.partition_point(|(t, _)| *t <= a));
+        let end = self.samples.partition_point(|(t, _)| *t <= until_s);
+        self.samples.get(start..end.max(start)).unwrap_or(&[])
+    }
+
     /// The reading at `t_s`, linear between the samples around it; `None` outside the
     /// samples or where those two are more than `max_gap_s` apart.
     pub(crate) fn at(&self, t_s: f64, max_gap_s: f64) -> Option<Vector3<f64>> {
@@ -84,5 +91,8 @@ mod tests {
         assert!((x - Vector3::new(0.75, 0.25, 0.0)).norm() < 1e-12);
         assert!(s.at(0.02, 0.015).is_none(), "0.02 s between 0.01 and 0.03");
         assert!(s.at(0.02, 0.05).is_some());
+        assert_eq!(s.between(None, 0.01).len(), 2);
+        assert_eq!(s.between(Some(0.0), 0.01).len(), 1);
+        assert_eq!(s.between(Some(0.03), 0.01).len(), 0);
     }
 }
