@@ -34,7 +34,9 @@ impl Series {
         self.samples.is_empty()
     }
 
-    /// The samples held, in time order.
+    /// The samples held, in time order (the tests look at them; the code reads them through
+    /// [`Self::between`] and [`Self::at`]).
+    #[cfg(test)]
     pub(crate) fn samples(&self) -> &[(f64, Vector3<f64>)] {
         &self.samples
     }
