@@ -101,7 +101,11 @@ impl Accel {
     /// The mean specific force over `[t0_s, t1_s]` in the camera frame (m/s²), from the
     /// samples in it; `None` without one.
     fn mean_between(&self, t0_s: f64, t1_s: f64) -> Option<Vector3<f64>> {
-        let inside = self.samples.between(None, t1_s).iter().filter(|(t, _)| *t >= t0_s);
+        let inside = self
+            .samples
+            .between(None, t1_s)
+            .iter()
+            .filter(|(t, _)| *t >= t0_s);
         let (sum, n) = inside.fold((Vector3::zeros(), 0usize), |(s, n), (_, f)| (s + f, n + 1));
         (n > 0).then(|| sum / n as f64)
     }
