@@ -60,6 +60,17 @@ fn the_quick_blur_study_measures_each_run_and_sees_the_blur_in_the_images() {
         // Measured 0.47 and 0.52 mm on 320x240 frames.
         let ate = r["ate_m"].as_f64().unwrap();
         assert!(ate > 0.0 && ate < 0.005, "ATE {ate} m");
+        // The Sim(3) fit has the SE(3) fit's freedom and a scale: never a larger error,
+        // and on the lab's depth (biased by at most 0.7 %) a scale within 1 % of 1.
+        let (sim3, scale) = (
+            r["ate_sim3_m"].as_f64().unwrap(),
+            r["sim3_scale"].as_f64().unwrap(),
+        );
+        assert!(
+            sim3 > 0.0 && sim3 <= ate * (1.0 + 1e-9),
+            "Sim(3) {sim3} m, SE(3) {ate} m"
+        );
+        assert!((scale - 1.0).abs() < 0.01, "scale {scale}");
     }
     // Faster walking blurs more, and the image-only sharpness sees it within the run
     // (measured correlation -0.91 with the true image motion).

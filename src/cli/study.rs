@@ -212,7 +212,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
             r.speed_fraction,
             r.seed,
             on_off(mitigation),
-            r.ate_m * 1e3,
+            r.scores.ate_m * 1e3,
             r.tracked,
             r.frames,
             r.depth_aligned,
@@ -265,9 +265,7 @@ fn blur(mut a: BlurStudyArgs) -> Result<()> {
         .publish()
         .with_context(|| format!("publishing {}", a.out.display()))?;
     if !runs.is_empty() {
-        crate::outln!(
-            "gait    speed  frames  mitigation  ATE mm (mean, worst)  RPE mm  tracked  by depth  lost  motion px  sharpness"
-        )?;
+        crate::outln!("{}", COLUMNS.join("  "))?;
         for r in &rows {
             crate::outln!("{}", r.join("  "))?;
         }
@@ -333,7 +331,7 @@ fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<St
         }
         let n = set.len() as f64;
         let mean = |f: &dyn Fn(&RunResult) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n;
-        let worst_ate = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
+        let worst_ate = set.iter().map(|r| r.scores.ate_m).fold(0.0, f64::max);
         let frames: usize = set.iter().map(|r| r.frames).sum();
         let tracked: usize = set.iter().map(|r| r.tracked).sum();
         let by_depth: usize = set.iter().map(|r| r.depth_aligned).sum();
@@ -342,8 +340,14 @@ fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<St
             format!("{s:.2} ({:.3} m/s)", s * MAX_SPEED_M_S),
             format!("{}", set.first().map_or(0, |r| r.frames)),
             on_off(m).to_owned(),
-            format!("{:.2}, {:.2}", mean(&|r| r.ate_m) * 1e3, worst_ate * 1e3),
-            format!("{:.2}", mean(&|r| r.rpe_m) * 1e3),
+            format!(
+                "{:.2}, {:.2}",
+                mean(&|r| r.scores.ate_m) * 1e3,
+                worst_ate * 1e3
+            ),
+            format!("{:.2}", mean(&|r| r.scores.ate_sim3_m) * 1e3),
+            format!("{:.2}", mean(&|r| scale_off_pct(&r.scores))),
+            format!("{:.2}", mean(&|r| r.scores.rpe_m) * 1e3),
             format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
             format!("{by_depth}"),
             format!("{}", frames - tracked),
@@ -352,6 +356,35 @@ fn table(runs: &[RunResult], speeds: &[f64], mitigations: &[bool]) -> Vec<Vec<St
         ]);
     }
     rows
+}
+
+/// The columns of the synthetic runs' table ([`table`]'s rows).
+const COLUMNS: [&str; 13] = [
+    "gait",
+    "speed",
+    "frames per run",
+    "mitigation",
+    "ATE mm (mean, worst)",
+    SIM3_ATE_COLUMN,
+    SCALE_OFF_COLUMN,
+    "RPE mm",
+    "tracked",
+    "by depth",
+    "lost",
+    "image motion px",
+    "sharpness",
+];
+
+/// The table column of the ATE once the scale is taken out.
+pub(super) const SIM3_ATE_COLUMN: &str = "ATE mm, Sim(3)";
+
+/// The table column of [`scale_off_pct`].
+pub(super) const SCALE_OFF_COLUMN: &str = "length off % (mean)";
+
+/// How far the trajectory's length is from the truth's (%, unsigned): `|1 / s - 1|` for
+/// the Sim(3) alignment's scale `s` (an RGB-D SLAM's scale comes from its depth).
+pub(super) fn scale_off_pct(s: &stride::study::TrajectoryScores) -> f64 {
+    100.0 * (1.0 / s.sim3_scale - 1.0).abs()
 }
 
 /// The gait phase (x 5) over time, the line broken where the phase wraps to 0.
@@ -411,7 +444,10 @@ fn report(
         title: "ATE against speed (every seed)".into(),
         x_label: "speed (fraction of 0.15 m/s)".into(),
         y_label: "ATE RMSE (mm)".into(),
-        series: per_gait(&|r| (r.speed_fraction, r.ate_m * 1e3), Style::Markers),
+        series: per_gait(
+            &|r| (r.speed_fraction, r.scores.ate_m * 1e3),
+            Style::Markers,
+        ),
         y_from_zero: true,
         ..Chart::default()
     };
@@ -501,22 +537,7 @@ fn report(
             if runs.len() == 1 { "" } else { "s" }
         ));
         rep.heading("Per gait and speed, over the seeds (as paper 004's Table 1)");
-        rep.table(
-            &[
-                "gait",
-                "speed",
-                "frames per run",
-                "mitigation",
-                "ATE mm (mean, worst)",
-                "RPE mm",
-                "tracked",
-                "by depth",
-                "lost",
-                "image motion px",
-                "sharpness",
-            ],
-            rows.to_vec(),
-        );
+        rep.table(&COLUMNS, rows.to_vec());
         rep.heading("Plots");
         rep.figure(
             "study",

@@ -52,7 +52,7 @@ pub(crate) fn runs(
                 "blur {length_px} px, seed {}, mitigation {}: ATE {:.2} mm, {} of {} frames tracked ({} by depth)",
                 x.seed,
                 super::study::on_off(x.mitigation),
-                x.ate_m * 1e3,
+                x.scores.ate_m * 1e3,
                 x.tracked,
                 x.frames,
                 x.depth_aligned
@@ -150,7 +150,7 @@ pub(crate) fn peer_camera(seq: &Sequence, camera: Option<&str>) -> Result<String
 }
 
 /// Per blur length, over the seeds: length, ATE mean and worst (mm), ATE over the
-/// unblurred run's, RPE (mm), tracked, lost, sharpness; and ORB-SLAM3's ATE (median and
+/// unblurred run's, ATE after Sim(3) (mm), how far the length is off (%), RPE (mm), tracked, lost, sharpness; and ORB-SLAM3's ATE (median and
 /// range of its runs' final trajectories) and tracked frames when it ran.
 pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
     let mut lengths: Vec<f64> = runs.iter().map(|r| r.length_px).collect();
@@ -163,7 +163,7 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
         let set: Vec<f64> = runs
             .iter()
             .filter(|r| r.length_px == l && r.mitigation == m)
-            .map(|r| r.ate_m)
+            .map(|r| r.scores.ate_m)
             .collect();
         set.iter().sum::<f64>() / set.len().max(1) as f64
     };
@@ -177,7 +177,7 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
                 .filter(|r| r.length_px == l && r.mitigation == m)
                 .collect();
             let n = set.len().max(1) as f64;
-            let worst = set.iter().map(|r| r.ate_m).fold(0.0, f64::max);
+            let worst = set.iter().map(|r| r.scores.ate_m).fold(0.0, f64::max);
             let frames: usize = set.iter().map(|r| r.frames).sum();
             let tracked: usize = set.iter().map(|r| r.tracked).sum();
             let by_depth: usize = set.iter().map(|r| r.depth_aligned).sum();
@@ -189,7 +189,21 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
                     true => format!("{:.2}", mean_ate(l, m) / mean_ate(0.0, m)),
                     false => "-".into(),
                 },
-                format!("{:.2}", set.iter().map(|r| r.rpe_m).sum::<f64>() / n * 1e3),
+                format!(
+                    "{:.2}",
+                    set.iter().map(|r| r.scores.ate_sim3_m).sum::<f64>() / n * 1e3
+                ),
+                format!(
+                    "{:.2}",
+                    set.iter()
+                        .map(|r| super::study::scale_off_pct(&r.scores))
+                        .sum::<f64>()
+                        / n
+                ),
+                format!(
+                    "{:.2}",
+                    set.iter().map(|r| r.scores.rpe_m).sum::<f64>() / n * 1e3
+                ),
                 format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
                 format!("{by_depth}"),
                 format!("{}", frames - tracked),
@@ -227,6 +241,8 @@ pub(crate) fn columns(peer: bool) -> Vec<&'static str> {
         "mitigation",
         "ATE mm (mean, worst)",
         "ATE / unblurred",
+        super::study::SIM3_ATE_COLUMN,
+        super::study::SCALE_OFF_COLUMN,
         "RPE mm",
         "tracked",
         "by depth",
@@ -247,14 +263,18 @@ pub(crate) fn charts(runs: &[RealRun], peer: &PeerRuns) -> Vec<Chart> {
     };
     let both = runs.iter().any(|r| r.mitigation) && runs.iter().any(|r| !r.mitigation);
     let mut ate: Vec<Series> = match both {
-        false => vec![Series::line("stride", PALETTE[0], pts(&|r| r.ate_m * 1e3))],
+        false => vec![Series::line(
+            "stride",
+            PALETTE[0],
+            pts(&|r| r.scores.ate_m * 1e3),
+        )],
         true => [false, true]
             .into_iter()
             .map(|m| {
                 let on: Vec<(f64, f64)> = runs
                     .iter()
                     .filter(|r| r.mitigation == m)
-                    .map(|r| (r.length_px, r.ate_m * 1e3))
+                    .map(|r| (r.length_px, r.scores.ate_m * 1e3))
                     .collect();
                 let name = format!("stride, mitigation {}", super::study::on_off(m));
                 Series::line(name, PALETTE[if m { 0 } else { 3 }], on)

@@ -18,10 +18,47 @@ use stride_core::trajectory::Trajectory;
 use stride_datasets::synth::motion::{Gait, PathKind};
 use stride_datasets::synth::{Synth, SynthConfig, SynthError};
 use stride_eval::blur::{correlation, laplacian_variance};
-use stride_eval::{ate, rpe, EvalError, Preset, RpeOptions};
+use stride_eval::{ate, rpe, Align, AteOptions, EvalError, Preset, RpeOptions};
 
 /// Paper 004's full speed (m/s): the study's speeds are fractions of it.
 pub const MAX_SPEED_M_S: f64 = 0.15;
+
+/// A run's trajectory scored against its ground truth, evo's definitions.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct TrajectoryScores {
+    /// ATE RMSE after SE(3) alignment (m).
+    pub ate_m: f64,
+    /// ATE RMSE after Sim(3) alignment (m): what is left once the trajectory's scale is
+    /// taken out (never more than `ate_m`, which the same fit with the scale held at 1
+    /// gives).
+    pub ate_sim3_m: f64,
+    /// The scale the Sim(3) alignment applies to the estimate (above 1: the trajectory
+    /// came out short). An RGB-D SLAM takes its scale from the depth, so this is mostly
+    /// the depth sensor's calibration, not the blur's doing.
+    pub sim3_scale: f64,
+    /// RPE RMSE over one frame (m).
+    pub rpe_m: f64,
+    /// RPE RMSE over one frame (degrees).
+    pub rpe_deg: f64,
+}
+
+/// Scores `traj` against `gt`: ATE (SE(3) and Sim(3)) and RPE over one frame.
+pub fn score_trajectory(gt: &Trajectory, traj: &Trajectory) -> Result<TrajectoryScores, EvalError> {
+    let se3 = ate(gt, traj, &slam_ate_options())?;
+    let sim3_options = AteOptions {
+        align: Align::Sim3,
+        ..slam_ate_options()
+    };
+    let sim3 = ate(gt, traj, &sim3_options)?;
+    let rp = rpe(gt, traj, &RpeOptions::for_preset(Preset::Evo))?;
+    Ok(TrajectoryScores {
+        ate_m: se3.trans_m.rmse,
+        ate_sim3_m: sim3.trans_m.rmse,
+        sim3_scale: sim3.alignment.scale,
+        rpe_m: rp.trans_m.rmse,
+        rpe_deg: rp.rot_deg.rmse,
+    })
+}
 
 /// Why a study run failed.
 #[derive(Debug, thiserror::Error)]
@@ -121,12 +158,9 @@ pub struct RunResult {
     pub mitigation: bool,
     /// Frames placed by depth alignment (counted in `tracked`).
     pub depth_aligned: usize,
-    /// ATE RMSE after SE(3) alignment (m), evo's definition.
-    pub ate_m: f64,
-    /// RPE RMSE over one frame (m, degrees), evo's definition.
-    pub rpe_m: f64,
-    /// See `rpe_m`.
-    pub rpe_deg: f64,
+    /// The trajectory's ATE (SE(3) and Sim(3)), scale and RPE.
+    #[serde(flatten)]
+    pub scores: TrajectoryScores,
     /// Mean and 95th percentile of the true image motion during the exposure (px).
     pub image_motion_px_mean: f64,
     /// See `image_motion_px_mean`.
@@ -231,8 +265,7 @@ pub fn run(
     }
     let out = pipeline.finish()?;
     let traj = out.run.trajectory()?;
-    let at = ate(&gt, &traj, &slam_ate_options())?;
-    let rp = rpe(&gt, &traj, &RpeOptions::for_preset(Preset::Evo))?;
+    let scores = score_trajectory(&gt, &traj)?;
     let tracked = per_frame.iter().filter(|f| f.tracked).count();
     let motion: Vec<f64> = per_frame.iter().map(|f| f.image_motion_px).collect();
     let sharp: Vec<f64> = per_frame.iter().map(|f| f.sharpness).collect();
@@ -246,9 +279,7 @@ pub fn run(
         lost: spec.frames - tracked,
         mitigation,
         depth_aligned,
-        ate_m: at.trans_m.rmse,
-        rpe_m: rp.trans_m.rmse,
-        rpe_deg: rp.rot_deg.rmse,
+        scores,
         image_motion_px_mean: motion.iter().sum::<f64>() / motion.len().max(1) as f64,
         image_motion_px_p95: motion_p95,
         sharpness_median: crate::pipeline::median_p95(sharp.iter().copied()).0,

@@ -8,13 +8,12 @@
 //! seed, so the blur's cost does not grow with the seeds.
 
 use super::StudyError;
-use crate::pipeline::{slam_ate_options, FrameStatus, Pipeline, PipelineConfig};
+use crate::pipeline::{FrameStatus, Pipeline, PipelineConfig};
 use stride_core::frame::RgbdFrame;
 use stride_datasets::motion_blur::{blur_frame, MotionBlur};
 use stride_datasets::sequence::Sequence;
 use stride_datasets::stream::StreamError;
 use stride_eval::blur::laplacian_variance;
-use stride_eval::{ate, rpe, Preset, RpeOptions};
 
 /// Frames decoded ahead of the blur.
 const DECODE_AHEAD: usize = 4;
@@ -38,12 +37,9 @@ pub struct RealRun {
     pub mitigation: bool,
     /// Frames placed by depth alignment (counted in `tracked`).
     pub depth_aligned: usize,
-    /// ATE RMSE after SE(3) alignment (m), evo's definition.
-    pub ate_m: f64,
-    /// RPE RMSE over one frame (m, degrees), evo's definition.
-    pub rpe_m: f64,
-    /// See `rpe_m`.
-    pub rpe_deg: f64,
+    /// The trajectory's ATE (SE(3) and Sim(3)), scale and RPE.
+    #[serde(flatten)]
+    pub scores: super::TrajectoryScores,
     /// Median sharpness of the blurred frames (variance of the Laplacian, grey levels²).
     pub sharpness_median: f64,
 }
@@ -124,8 +120,7 @@ pub fn run_blurred(
         pipelines.into_iter().zip(variants).zip(tracked)
     {
         let traj = p.finish()?.run.trajectory()?;
-        let at = ate(gt, &traj, &slam_ate_options())?;
-        let rp = rpe(gt, &traj, &RpeOptions::for_preset(Preset::Evo))?;
+        let scores = super::score_trajectory(gt, &traj)?;
         runs.push(RealRun {
             length_px: blur.length_px,
             seed,
@@ -135,9 +130,7 @@ pub fn run_blurred(
             unreadable,
             mitigation,
             depth_aligned,
-            ate_m: at.trans_m.rmse,
-            rpe_m: rp.trans_m.rmse,
-            rpe_deg: rp.rot_deg.rmse,
+            scores,
             sharpness_median,
         });
     }
