@@ -150,8 +150,9 @@ pub(crate) fn peer_camera(seq: &Sequence, camera: Option<&str>) -> Result<String
 }
 
 /// Per blur length, over the seeds: length, ATE mean and worst (mm), ATE over the
-/// unblurred run's, ATE after Sim(3) (mm), how far the length is off (%), RPE (mm), tracked, lost, sharpness; and ORB-SLAM3's ATE (median and
-/// range of its runs' final trajectories) and tracked frames when it ran.
+/// unblurred run's, ATE after Sim(3) (mm), how far the length is off (%), RPE (mm),
+/// tracked, lost, sharpness; and ORB-SLAM3's ATE (median and range of its runs' final
+/// trajectories) and tracked frames when it ran.
 pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
     let mut lengths: Vec<f64> = runs.iter().map(|r| r.length_px).collect();
     lengths.sort_by(f64::total_cmp);

@@ -33,8 +33,8 @@ pub struct TrajectoryScores {
     /// gives).
     pub ate_sim3_m: f64,
     /// The scale the Sim(3) alignment applies to the estimate (above 1: the trajectory
-    /// came out short). An RGB-D SLAM takes its scale from the depth, so this is mostly
-    /// the depth sensor's calibration, not the blur's doing.
+    /// came out short). An RGB-D SLAM takes its scale from the depth, so a depth
+    /// sensor's calibration shows here.
     pub sim3_scale: f64,
     /// RPE RMSE over one frame (m).
     pub rpe_m: f64,
