@@ -178,6 +178,7 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
                 .filter(|r| r.length_px == l && r.mitigation == m)
                 .collect();
             let n = set.len().max(1) as f64;
+            let mean = |f: &dyn Fn(&RealRun) -> f64| set.iter().map(|r| f(r)).sum::<f64>() / n;
             let worst = set.iter().map(|r| r.scores.ate_m).fold(0.0, f64::max);
             let frames: usize = set.iter().map(|r| r.frames).sum();
             let tracked: usize = set.iter().map(|r| r.tracked).sum();
@@ -190,21 +191,9 @@ pub(crate) fn table(runs: &[RealRun], peer: &PeerRuns) -> Vec<Vec<String>> {
                     true => format!("{:.2}", mean_ate(l, m) / mean_ate(0.0, m)),
                     false => "-".into(),
                 },
-                format!(
-                    "{:.2}",
-                    set.iter().map(|r| r.scores.ate_sim3_m).sum::<f64>() / n * 1e3
-                ),
-                format!(
-                    "{:.2}",
-                    set.iter()
-                        .map(|r| super::study::scale_off_pct(&r.scores))
-                        .sum::<f64>()
-                        / n
-                ),
-                format!(
-                    "{:.2}",
-                    set.iter().map(|r| r.scores.rpe_m).sum::<f64>() / n * 1e3
-                ),
+                format!("{:.2}", mean(&|r| r.scores.ate_sim3_m) * 1e3),
+                format!("{:.2}", mean(&|r| super::study::scale_off_pct(&r.scores))),
+                format!("{:.2}", mean(&|r| r.scores.rpe_m) * 1e3),
                 format!("{:.1} %", 100.0 * tracked as f64 / frames.max(1) as f64),
                 format!("{by_depth}"),
                 format!("{}", frames - tracked),
