@@ -207,6 +207,12 @@ pub struct VoConfig {
     ///
     /// [`VisualOdometry::add_accelerometer`]: crate::VisualOdometry::add_accelerometer
     pub readout_accelerometer: bool,
+    /// With a rolling shutter, how many times the tracks are measured again once the
+    /// frame's motion is estimated (each time with the velocity of the last estimate) and
+    /// the pose polished on them, without a new RANSAC. The first estimate rests on the
+    /// predicted motion, which lags a foot's impact; each pass starts nearer the frame's
+    /// own. 0: the tracks keep the predicted motion's measurement.
+    pub rolling_shutter_passes: usize,
     /// With a gyroscope, the rotation predicted from one frame to the next (where
     /// Lucas-Kanade starts each track) is integrated from it instead of the last frame
     /// interval's (see `crate::gyro`).
@@ -323,6 +329,7 @@ impl Default for VoConfig {
             exposure_s: 0.0,
             readout_gyroscope: true,
             readout_accelerometer: true,
+            rolling_shutter_passes: 2,
             predict_gyroscope: true,
             seed: 1,
         }

@@ -501,7 +501,7 @@ impl VisualOdometry {
         let hypothesis = ransac(&corrs, &params, &mut self.rng);
         timing.ransac_s += t_r.elapsed().as_secs_f64();
         let t_f = Instant::now();
-        let est = hypothesis.and_then(|(pose, inliers, iterations)| {
+        let estimate = hypothesis.and_then(|(pose, inliers, iterations)| {
             let e = polish(&corrs, pose, inliers, cfg.refine_iterations, &params)?;
             Some(MotionEstimate { iterations, ..e })
         });
@@ -509,9 +509,10 @@ impl VisualOdometry {
             alive,
             pairs,
             corrs,
-            estimate: est,
+            estimate,
         };
-        let attempt = self.remeasure_rolling(frame, attempt, &params);
+        let passes = 0..self.config.rolling_shutter_passes;
+        let attempt = passes.fold(attempt, |a, _| self.remeasure_rolling(frame, a, &params));
         timing.refine_s += t_f.elapsed().as_secs_f64();
         Ok(attempt)
     }
@@ -554,10 +555,9 @@ impl VisualOdometry {
         }
     }
 
-    /// With a rolling shutter, the tracks were measured with the predicted motion, which
-    /// lags a walking robot's shake. Once the frame's motion is estimated, they are measured
-    /// again with it and the pose is polished on them (no new RANSAC); the first estimate
-    /// stays when the second fails.
+    /// One pass of `rolling_shutter_passes`: the tracks, measured with a motion that lags a
+    /// walking robot's shake, are measured again with the frame's estimated motion and the
+    /// pose polished on them (no new RANSAC); the estimate before stays if this one fails.
     fn remeasure_rolling(
         &mut self,
         frame: &RgbdFrame,
@@ -586,13 +586,12 @@ impl VisualOdometry {
         match polish(&again.corrs, e.ref_from_cur, flags, refine, params) {
             Some(second) => {
                 self.shutter = shutter;
-                Attempt {
-                    estimate: Some(MotionEstimate {
-                        iterations: e.iterations,
-                        ..second
-                    }),
-                    ..again
-                }
+                let iterations = e.iterations;
+                let estimate = Some(MotionEstimate {
+                    iterations,
+                    ..second
+                });
+                Attempt { estimate, ..again }
             }
             None => first,
         }

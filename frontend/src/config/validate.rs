@@ -266,6 +266,12 @@ impl VoConfig {
             "0 to 0.1 (s)",
         )?;
         check(
+            "rolling_shutter_passes",
+            c.rolling_shutter_passes,
+            c.rolling_shutter_passes <= 5,
+            "0 to 5",
+        )?;
+        check(
             "exposure_s",
             c.exposure_s,
             (0.0..=0.5).contains(&c.exposure_s),
