@@ -530,9 +530,12 @@ fn report(
              depth: the mitigation, counted apart as 'by depth'); lost frames were predicted. \
              Mitigation: frames the features lose are placed by aligning their depth with the \
              last keyframe's (the colour blurs, the depth does not); each colour row's \
-             rotation is integrated from the lab's gyroscope over the readout and averaged \
-             over the exposure; the rotation from frame to frame is predicted from it; and a \
-             keyframe that lost tracks ask for waits while it shows a foot's impact.",
+             rotation is integrated from the lab's gyroscope and its translation from its \
+             accelerometer over the readout, averaged over the exposure; the rotation from \
+             frame to frame is predicted from the gyroscope; and a keyframe that lost tracks \
+             ask for waits while it shows a foot's impact. On and off, the tracks are \
+             measured again with each estimate of the frame's motion (the rolling shutter's \
+             model, `rolling_shutter_passes`).",
             runs.len(),
             if runs.len() == 1 { "" } else { "s" }
         ));
