@@ -37,6 +37,7 @@ use crate::relocalize::PlaceMemory;
 use crate::result::{FrameResult, OdometryLink, StageTimes, TrackingStatus};
 use nalgebra::{Isometry3, Matrix6};
 use opencv::core::Point2f;
+use std::ops::ControlFlow::{self, Break, Continue};
 use std::time::Instant;
 use stride_core::camera::PinholeCamera;
 use stride_core::frame::RgbdFrame;
@@ -511,8 +512,9 @@ impl VisualOdometry {
             corrs,
             estimate,
         };
-        let passes = 0..self.config.rolling_shutter_passes;
-        let attempt = passes.fold(attempt, |a, _| self.remeasure_rolling(frame, a, &params));
+        let mut passes = 0..self.config.rolling_shutter_passes;
+        let (Continue(attempt) | Break(attempt)) =
+            passes.try_fold(attempt, |a, _| self.remeasure_rolling(frame, a, &params));
         timing.refine_s += t_f.elapsed().as_secs_f64();
         Ok(attempt)
     }
@@ -557,13 +559,14 @@ impl VisualOdometry {
 
     /// One pass of `rolling_shutter_passes`: the tracks, measured with a motion that lags a
     /// walking robot's shake, are measured again with the frame's estimated motion and the
-    /// pose polished on them (no new RANSAC); the estimate before stays if this one fails.
+    /// pose polished on them (no new RANSAC). `Break`: the attempt as it was, and no more
+    /// passes (a global shutter, or this pass failed, as another would).
     fn remeasure_rolling(
         &mut self,
         frame: &RgbdFrame,
         first: Attempt,
         params: &MotionParams,
-    ) -> Attempt {
+    ) -> ControlFlow<Attempt, Attempt> {
         let dt = frame.t_s - self.prev_t;
         let readout = self.config.rolling_shutter_s;
         let Some(e) = first
@@ -571,7 +574,7 @@ impl VisualOdometry {
             .as_ref()
             .filter(|_| readout > 0.0 && dt > 0.0)
         else {
-            return first;
+            return Break(first);
         };
         let prev_from_cur = self.world_from_prev.inverse() * e.ref_from_cur;
         let shutter = self.readout_motion(Some((&prev_from_cur, dt)), frame.t_s, false);
@@ -584,16 +587,13 @@ impl VisualOdometry {
             .collect();
         let refine = self.config.refine_iterations;
         match polish(&again.corrs, e.ref_from_cur, flags, refine, params) {
-            Some(second) => {
+            Some(mut second) => {
                 self.shutter = shutter;
-                let iterations = e.iterations;
-                let estimate = Some(MotionEstimate {
-                    iterations,
-                    ..second
-                });
-                Attempt { estimate, ..again }
+                second.iterations = e.iterations;
+                let estimate = Some(second);
+                Continue(Attempt { estimate, ..again })
             }
-            None => first,
+            None => Break(first),
         }
     }
 }
