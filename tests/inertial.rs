@@ -6,8 +6,8 @@
 //! frame after the first for its prediction; with the lab's accelerometer too, more
 //! accurate again, every frame after the first taking its translation (and none from an
 //! accelerometer too slow for it, each counted); the tracks measured again with the
-//! estimated motion, more accurate again; and an estimate that turns away from the
-//! gyroscope is rejected.
+//! estimated motion, more accurate than the predicted motion's measurement (a second
+//! time, no worse); and an estimate that turns away from the gyroscope is rejected.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)] // test code: a panic is a failure report
 
